@@ -1,0 +1,96 @@
+"""The material table and the optics of a single interface.
+
+A :class:`Materials` table stacks per-material arrays indexed by material id
+(``color (M, 3)``, ``specular (M,)``...). What the fields mean depends on the
+scene's shading model:
+
+``classic`` (the seed raytracer's look)
+    ``ambient_color * ambient * C * (1 - transparency)``
+    ``+ sum_lights S * light * [(1 - transparency) * diffuse * C * max(n.l, 0)``
+    ``+ specular * max(r.v, 0)^shininess]``
+    ``+ reflectivity * traced(reflected) + transparency * traced(refracted)``,
+    where ``C`` is the colour or texture, ``S`` the shadow transmission (each
+    crossing of an occluder's surface multiplies by its transparency). Total
+    internal reflection hands the refracted weight to the reflected ray.
+
+``physical`` (radiometric, linear), with ``T = transparency``, ``R =
+reflectivity`` (RGB), ``F`` the unpolarised Fresnel reflectance:
+    ``(1 - T) (1 - R) C / pi * E_direct + [T F + (1 - T) R] L(reflected)``
+    ``+ T (1 - F) eta^2 L(refracted)``. Pure materials are a diffuse (``R = T =
+    0``), a mirror (``C = 0, R``), a smooth glass (``C = 0, T = 1, ior``); any
+    mixture with ``C, R <= 1`` conserves energy.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from . import _vec as V
+
+
+class Materials(eqx.Module):
+    """Per-material arrays (``M`` materials).
+
+    - ``color (M, 3)``: diffuse colour (classic) / albedo (physical), linear RGB.
+    - ``ambient``, ``diffuse``, ``specular``, ``shininess`` ``(M,)``: classic Phong terms.
+    - ``reflectivity (M, 3)``: mirror weight / RGB reflectance.
+    - ``transparency (M,)`` in [0, 1], ``ior (M,)`` >= 1 (exterior index is 1).
+    - ``tex_kind (M,)`` int (0 none, 1 checker, 2 stripes, 3 image), ``tex_color2 (M, 3)``,
+      ``tex_scale (M,)``, ``tex_direction (M, 2)``, ``tex_image (M,)`` int index into ``images``.
+    - ``images``: tuple of ``(H, W, 3)`` linear RGB texel arrays (differentiable).
+    """
+
+    color: Float[Array, "M 3"]
+    ambient: Float[Array, " M"]
+    diffuse: Float[Array, " M"]
+    specular: Float[Array, " M"]
+    shininess: Float[Array, " M"]
+    reflectivity: Float[Array, "M 3"]
+    transparency: Float[Array, " M"]
+    ior: Float[Array, " M"]
+    tex_kind: Int[Array, " M"]
+    tex_color2: Float[Array, "M 3"]
+    tex_scale: Float[Array, " M"]
+    tex_direction: Float[Array, "M 2"]
+    tex_image: Int[Array, " M"]
+    images: tuple
+    kinds_present: tuple = eqx.field(static=True, default=())
+
+    def __check_init__(self):
+        m = self.color.shape[0]
+        for name in ("ambient", "diffuse", "specular", "shininess", "transparency", "ior", "tex_kind", "tex_scale", "tex_image"):
+            if getattr(self, name).shape != (m,):
+                raise ValueError(f"Materials.{name}: expected shape ({m},), got {getattr(self, name).shape}")
+        for name in ("color", "reflectivity", "tex_color2"):
+            if getattr(self, name).shape != (m, 3):
+                raise ValueError(f"Materials.{name}: expected shape ({m}, 3), got {getattr(self, name).shape}")
+
+
+def fresnel_dielectric(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a smooth dielectric interface.
+
+    ``cos_i >= 0`` is the cosine of the incidence angle, ``eta = n_i / n_t``
+    (index on the incident side over the transmitted side). Returns ``(F,
+    cos_t, tir)``; ``F = 1`` under total internal reflection. NaN-free in value
+    and gradient at normal and grazing incidence and at the critical angle.
+    """
+    sin2_t = eta * eta * (1.0 - cos_i * cos_i)
+    tir = sin2_t >= 1.0
+    cos_t = V.safe_sqrt(1.0 - sin2_t)
+    rs = V.safe_div(eta * cos_i - cos_t, eta * cos_i + cos_t)
+    rp = V.safe_div(cos_i - eta * cos_t, cos_i + eta * cos_t)
+    F = jnp.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
+    return F, cos_t, tir
+
+
+def refract(d, n, eta, cos_t):
+    """Snell's law in the seed report's vector form (Fig. 4).
+
+    ``d`` unit incident direction, ``n`` unit normal facing against ``d``
+    (``d.n <= 0``), ``eta = n_1 / n_2``, ``cos_t`` from :func:`fresnel_dielectric`:
+    ``g = eta d - (eta (d.n) + cos_t) n``.
+    """
+    g = eta[None] * d - (eta * V.dot(d, n) + cos_t)[None] * n
+    return V.normalize(g)
