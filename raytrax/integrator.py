@@ -159,8 +159,8 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     wt = jnp.where(vm, w * wt, 0.0)
     bg = env.background[:, None]
     contrib = jnp.where(vm, w * local, w * bg)
-    if last:
-        contrib = contrib + (wr + wt) * bg
+    # After the last allowed specular interaction, specular children see the background.
+    contrib = contrib + jnp.where(last, 1.0, 0.0).astype(dt) * (wr + wt) * bg
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
 
 
@@ -207,49 +207,59 @@ def _compact_map(fn, args, active, sub):
     return jax.tree_util.tree_map(merge, outs)
 
 
+def _top_branches(kids, B, n):
+    """From ``2 B`` candidate children per sample keep the ``B`` heaviest.
+
+    ``kids`` holds (origin, direction, throughput) of the reflected and the
+    refracted children and the cone width, each with ray axis ``B * n``
+    (slot-major). Selection uses the channel-max throughput (no gradient).
+    """
+    po, rd, wr, pi, td, wt, cwh = kids
+
+    def two(a_r, a_t):
+        k = a_r.shape[0]
+        return jnp.concatenate([a_r.reshape(k, B, n), a_t.reshape(k, B, n)], 1)
+
+    co, cd, cwt = two(po, pi), two(rd, td), two(wr, wt)
+    ccw = jnp.concatenate([cwh.reshape(B, n), cwh.reshape(B, n)], 0)
+    score = jax.lax.stop_gradient(jnp.max(cwt, 0)).T  # (n, 2B)
+    _, top = jax.lax.top_k(score, B)  # (n, B)
+    top = top.T  # (B, n)
+
+    def g(a):
+        return jnp.take_along_axis(a, jnp.broadcast_to(top[None], (a.shape[0],) + top.shape), 1).reshape(a.shape[0], -1)
+
+    return g(co), g(cd), g(cwt), jnp.take_along_axis(ccw, top, 0).reshape(-1)
+
+
 def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions):
-    """Radiance ``(3, n)`` of rays ``o, d (3, n)``."""
+    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)``.
+
+    Every depth runs the same compiled body (a ``lax.scan`` over depth) on a
+    fixed buffer of ``branches`` rays per camera sample; slots without weight
+    are compacted away by :func:`_compact_map`.
+    """
     st = opts.settings
     B = st.branches
     n = o.shape[1]
     dt = o.dtype
-    w = jnp.ones_like(o)
-    cw = jnp.zeros((n,), dt)
-    radiance = jnp.zeros_like(o)
-    b = 1
-    for depth in range(st.max_depth + 1):
+    pad = lambda a, fill: jnp.concatenate([a] + [jnp.full_like(a, fill)] * (B - 1), -1)
+    w = pad(jnp.ones_like(o), 0.0)
+    state = (pad(o, 0.0), pad(d, 0.0), w, jnp.zeros((B * n,), dt))
+
+    def body(carry, depth):
+        (o_, d_, w_, cw_), radiance = carry
         last = depth == st.max_depth
 
-        def fn(o_, d_, w_, cw_, last=last):
-            return _shade(scene, kinds, o_, d_, w_, cw_, spread, opts, last)
+        def fn(a, b, c, e):
+            return _shade(scene, kinds, a, b, c, e, spread, opts, last)
 
-        if depth == 0:
-            contrib, kids = fn(o, d, w, cw)
-        else:
-            active = jnp.any(w > 0, 0)
-            contrib, kids = _compact_map(fn, (o, d, w, cw), active, opts.subtile)
-        radiance = radiance + contrib.reshape(3, b, n).sum(1)
-        if last:
-            break
-        po, rd, wr, pi, td, wt, cwh = kids
-        # Candidates: (.., 2b, n); keep the B heaviest per sample.
-        def two(a_r, a_t):
-            k = a_r.shape[0]
-            return jnp.concatenate([a_r.reshape(k, b, n), a_t.reshape(k, b, n)], 1)
+        active = jnp.any(w_ > 0, 0)
+        contrib, kids = _compact_map(fn, (o_, d_, w_, cw_), active, opts.subtile)
+        radiance = radiance + contrib.reshape(3, B, n).sum(1)
+        return (_top_branches(kids, B, n), radiance), None
 
-        co, cd, cwt = two(po, pi), two(rd, td), two(wr, wt)
-        ccw = jnp.concatenate([cwh.reshape(b, n), cwh.reshape(b, n)], 0)
-        if 2 * b <= B:
-            b = 2 * b
-            o, d, w, cw = co.reshape(3, -1), cd.reshape(3, -1), cwt.reshape(3, -1), ccw.reshape(-1)
-        else:
-            score = jax.lax.stop_gradient(jnp.max(cwt, 0)).T  # (n, 2b)
-            _, top = jax.lax.top_k(score, B)  # (n, B)
-            top = top.T  # (B, n)
-            g = lambda a: jnp.take_along_axis(a, jnp.broadcast_to(top[None], (a.shape[0],) + top.shape), 1)
-            o, d, w = g(co).reshape(3, -1), g(cd).reshape(3, -1), g(cwt).reshape(3, -1)
-            cw = jnp.take_along_axis(ccw, top, 0).reshape(-1)
-            b = B
+    (_, radiance), _ = jax.lax.scan(body, (state, jnp.zeros_like(o)), jnp.arange(st.max_depth + 1))
     return radiance
 
 

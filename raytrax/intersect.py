@@ -84,11 +84,15 @@ def prepare(scene) -> list[Kind]:
         kinds.append(Kind("triangle", _ng(S.tri_soa(T[:, 0], T[:, 1], T[:, 2])), M, S.tri_t, thit))
     bx = scene.boxes
     if bx.lo.shape[0]:
+        Rb = S.euler_matrix(bx.rotation).reshape(-1, 9)  # per box, not per ray
+        cb = 0.5 * (bx.lo + bx.hi)
+        hb = 0.5 * jnp.abs(bx.hi - bx.lo)
+
         def bhit(i, o, d, t0):
-            R = S.euler_matrix(bx.rotation[i])  # (n, 3, 3)
-            c = (0.5 * (bx.lo[i] + bx.hi[i])).T
-            h = (0.5 * jnp.abs(bx.hi[i] - bx.lo[i])).T
-            return S.box_hit(c, [h[0], h[1], h[2]], jnp.transpose(R, (1, 2, 0)), o, d, t0)
+            R = Rb[i].T.reshape(3, 3, -1)
+            c = cb[i].T
+            h = hb[i].T
+            return S.box_hit(c, [h[0], h[1], h[2]], R, o, d, t0)
 
         kinds.append(Kind("box", _ng(S.box_soa(bx)), bx.material, S.box_t, bhit))
     return kinds

@@ -1,0 +1,124 @@
+"""Scenes shared by the benchmark scripts (built in Python with :class:`raytrax.SceneBuilder`)."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+import raytrax as rt
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+
+def physical_scene(width=160, height=120, spp=16, max_depth=5, *, diffuse=True, mirror=True, glass=True,
+                   box=True, tetra=True, lights=(0, 1)):
+    """Floor, diffuse / mirror / glass spheres, a rotated box, a tetrahedron, two point lights.
+
+    The keyword switches drop objects (used to isolate which light paths differ).
+    """
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth,
+                        background=(0.0, 0.0, 0.0), name="physical")
+    b.camera(position=(0.0, 2.2, 7.0), look_at=(0.0, 0.8, 0.0), up=(0.0, 1.0, 0.0), fov=40.0)
+    all_lights = [((3.0, 6.0, 4.0), (40.0, 36.0, 30.0)), ((-4.0, 5.0, 2.0), (12.0, 15.0, 22.0))]
+    for i in lights:
+        b.light(*all_lights[i])
+    b.material("floor", color=(0.7, 0.7, 0.7))
+    b.material("red", color=(0.8, 0.25, 0.2))
+    b.material("green", color=(0.25, 0.7, 0.3))
+    b.material("blue", color=(0.2, 0.3, 0.8))
+    b.material("mirror", color=(0.0, 0.0, 0.0), reflectivity=(0.9, 0.9, 0.9))
+    b.material("glass", color=(0.0, 0.0, 0.0), transparency=1.0, ior=1.5)
+    b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")
+    if diffuse:
+        b.sphere((-1.9, 0.7, 0.2), 0.7, "red")
+    if mirror:
+        b.sphere((0.1, 1.0, -1.2), 1.0, "mirror")
+    if glass:
+        b.sphere((1.2, 0.6, 1.3), 0.6, "glass")
+    if box:
+        b.box((-0.85, 0.0, 1.0), (-0.15, 0.7, 1.7), "blue", rotation=(0.0, 30.0, 0.0))
+    if tetra:
+        a = 1.2
+        b.tetrahedron((2.3, a * math.sqrt(6.0) / 12.0, -0.6), a, "green")
+    return b.build()
+
+
+def simple_scene(width=160, height=120, spp=16, max_depth=5):
+    """Floor + one diffuse sphere + one point light (must agree with Mitsuba to > 40 dB)."""
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth, name="simple")
+    b.camera(position=(0.0, 2.2, 7.0), look_at=(0.0, 0.8, 0.0), fov=40.0)
+    b.light((3.0, 6.0, 4.0), (40.0, 36.0, 30.0))
+    b.material("floor", color=(0.7, 0.7, 0.7))
+    b.material("red", color=(0.8, 0.25, 0.2))
+    b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")
+    b.sphere((-0.3, 1.0, 0.0), 1.0, "red")
+    return b.build()
+
+
+def seed_scene(width=640, height=480, spp=4, max_depth=5):
+    """The seed (COSC 363) scene in ``classic`` shading: ``scenes/cosc363.toml`` through
+    ``rt.load_scene`` when both exist, otherwise a Python rendition of the report's
+    scene (checkered floor, textured / striped / mirror / glass spheres, a cube, a
+    tetrahedron, two lights at (+-10, 40, -5), the 20 x 20 image plane at distance 40)."""
+    path = os.path.join(ROOT, "scenes", "cosc363.toml")
+    if hasattr(rt, "load_scene") and os.path.exists(path):
+        sc = rt.load_scene(path)
+        return sc.replace_settings(width=width, height=height, spp=spp, max_depth=max_depth)
+    b = rt.SceneBuilder("classic", width=width, height=height, spp=spp, max_depth=max_depth,
+                        background=(0.0, 0.0, 0.0), ambient=(0.2, 0.2, 0.2), name="cosc363")
+    b.camera(position=(0, 0, 0), look_at=(0, 0, -1), up=(0, 1, 0), fov=2 * math.degrees(math.atan(10 / 40)))
+    b.light((10.0, 40.0, -5.0), (1.0, 1.0, 1.0))
+    b.light((-10.0, 40.0, -5.0), (1.0, 1.0, 1.0))
+    b.material("floor", color=(0.9, 0.9, 0.9), specular=0.0,
+               texture=rt.Checker(color2=(0.2, 0.2, 0.2), scale=0.2))
+    b.material("purple_mirror", color=(0.6, 0.5, 0.8), specular=1.0, shininess=50.0, reflectivity=0.8)
+    b.material("planet", color=(1.0, 1.0, 1.0), specular=0.3, shininess=20.0,
+               texture=rt.ImageTexture(rt.builtin_image("moon")))
+    b.material("stripes", color=(0.1, 0.7, 0.2), specular=0.5, shininess=30.0,
+               texture=rt.Stripes(color2=(0.0, 0.0, 0.0), scale=8.0, direction=(1.0, 1.0)))
+    b.material("glass", color=(0.9, 0.9, 1.0), specular=1.0, shininess=100.0, reflectivity=0.1,
+               transparency=0.8, ior=1.5)
+    b.material("cube", color=(0.8, 0.3, 0.1), specular=0.5, shininess=20.0)
+    b.material("tetra", color=(0.9, 0.8, 0.1), specular=0.5, shininess=20.0)
+    b.quad([(-40, -15, -40), (40, -15, -40), (40, -15, -200), (-40, -15, -200)], "floor")
+    b.sphere((-5.0, 0.0, -110.0), 15.0, "purple_mirror")
+    b.sphere((9.0, 7.0, -80.0), 4.0, "planet")
+    b.sphere((-11.0, -11.0, -75.0), 4.0, "stripes")
+    b.sphere((5.0, -10.0, -70.0), 5.0, "glass")
+    b.box((12.0, -15.0, -100.0), (18.0, -9.0, -94.0), "cube", rotation=(0.0, 25.0, 0.0))
+    b.tetrahedron((-12.0, -15.0 + 6.0 * math.sqrt(6.0) / 12.0, -95.0), 6.0, "tetra")
+    return b.build()
+
+
+def many_spheres(n, width=160, height=120, spp=1, max_depth=2, seed=0):
+    """A floor and ``n`` small diffuse spheres in a slab in front of the camera, one light."""
+    rng = np.random.default_rng(seed)
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth, name=f"spheres{n}")
+    b.camera(position=(0.0, 3.0, 9.0), look_at=(0.0, 0.5, 0.0), fov=40.0)
+    b.light((3.0, 8.0, 5.0), (80.0, 80.0, 80.0))
+    b.material("floor", color=(0.7, 0.7, 0.7))
+    b.material("ball", color=(0.6, 0.4, 0.3))
+    b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")
+    r = 0.6 / max(1.0, n ** (1 / 3))
+    for c in rng.uniform((-3, r, -3), (3, 2.5, 3), size=(n, 3)):
+        b.sphere(c, r, "ball")
+    return b.build()
+
+
+def many_triangles(n, width=160, height=120, spp=1, max_depth=2, seed=0):
+    """A floor and ``n`` random small triangles (as one mesh), one light."""
+    rng = np.random.default_rng(seed)
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth, name=f"tris{n}")
+    b.camera(position=(0.0, 3.0, 9.0), look_at=(0.0, 0.5, 0.0), fov=40.0)
+    b.light((3.0, 8.0, 5.0), (80.0, 80.0, 80.0))
+    b.material("floor", color=(0.7, 0.7, 0.7))
+    b.material("tri", color=(0.3, 0.5, 0.7))
+    b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")
+    s = 1.2 / max(1.0, n ** (1 / 3))
+    c = rng.uniform((-3, 0.3, -3), (3, 2.5, 3), size=(n, 1, 3))
+    v = c + rng.uniform(-s, s, size=(n, 3, 3))
+    b.mesh(v.reshape(-1, 3), np.arange(3 * n).reshape(n, 3), "tri")
+    return b.build()

@@ -1,0 +1,352 @@
+"""The ``raytrax`` command line.
+
+``raytrax render [SCENE] [-o OUT] [--width W] [--height H] [--spp N] [--depth D]``
+    renders a scene file (without SCENE: the seed scene, ``cosc363.toml``, shipped
+    with the package) to an image (``.png``, ``.jpg`` or ``.exr``, by extension).
+``raytrax info SCENE``
+    summarises a scene: render settings, camera, lights, materials, objects, and
+    an estimate of the work a render does.
+
+Exit status: 0 on success, 2 on a user error (bad scene file, bad option, an
+output that cannot be written), with one line on stderr and no traceback;
+130 when interrupted (Ctrl-C). A failed or interrupted run leaves no output file
+behind: images are written to a temporary file in the output folder and renamed
+into place when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+from importlib import resources
+from typing import Optional
+
+PROG = "raytrax"
+SEED_SCENE = "cosc363.toml"
+
+
+class UsageError(Exception):
+    """A user error reported in one line with exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage block
+        raise UsageError(f"{message} (see '{self.prog} --help')")
+
+
+def seed_scene_path() -> str:
+    """Path of the seed scene shipped inside the package."""
+    return str(resources.files("raytrax").joinpath("data", "scenes", SEED_SCENE))
+
+
+def _integer(name):
+    def conv(s):
+        try:
+            v = int(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {s!r}") from None
+        return v
+
+    conv.__name__ = name
+    return conv
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog=PROG, description="raytrax: a differentiable Whitted-style raytracer in JAX.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    r = sub.add_parser("render", help="render a scene file to an image",
+                       description="Render a scene file (default: the seed scene cosc363.toml) to an image. "
+                                   "The output format follows the extension: .png/.jpg (sRGB) or .exr (linear float).")
+    r.add_argument("scene", nargs="?", default=None, metavar="SCENE",
+                   help="a TOML scene file (default: the seed scene cosc363.toml)")
+    r.add_argument("-o", "--output", default=None, metavar="OUT",
+                   help="output image, .png, .jpg or .exr (default: <scene name>.png in the current folder)")
+    r.add_argument("--width", type=_integer("width"), help="image width in pixels")
+    r.add_argument("--height", type=_integer("height"), help="image height in pixels")
+    r.add_argument("--spp", type=_integer("spp"), help="samples per pixel, a square number")
+    r.add_argument("--depth", type=_integer("depth"), help="maximum number of specular bounces (max_depth)")
+    r.add_argument("--bits", type=int, choices=(8, 16), default=None,
+                   help="PNG bit depth (default 8); EXR: 16 for half floats (default 32-bit float)")
+    r.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    i = sub.add_parser("info", help="summarise a scene file",
+                       description="Summarise a scene: settings, camera, lights, materials, objects, cost.")
+    i.add_argument("scene", nargs="?", default=None, metavar="SCENE",
+                   help="a TOML scene file (default: the seed scene cosc363.toml)")
+    return p
+
+
+# -----------------------------------------------------------------------------
+# Progress
+# -----------------------------------------------------------------------------
+
+
+class _Phase:
+    """Prints ``raytrax: <what> ...`` and, when stderr is a terminal, a ticking
+    elapsed time; then the time taken."""
+
+    def __init__(self, what: str, quiet: bool):
+        self.what = what
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self._stop = threading.Event()
+        self._thread = None
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        if not self.quiet:
+            sys.stderr.write(f"{PROG}: {self.what} ...")
+            sys.stderr.flush()
+            if self.tty:
+                self._thread = threading.Thread(target=self._tick, daemon=True)
+                self._thread.start()
+        return self
+
+    def _tick(self):
+        while not self._stop.wait(1.0):
+            dt = time.perf_counter() - self.t0
+            sys.stderr.write(f"\r{PROG}: {self.what} ... {dt:.0f} s")
+            sys.stderr.flush()
+
+    def __exit__(self, exc_type, exc, tb):
+        self.elapsed = time.perf_counter() - self.t0
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if not self.quiet:
+            end = f"{self.elapsed:.1f} s" if exc_type is None else "failed"
+            sys.stderr.write(f"\r{PROG}: {self.what} ... {end}\n" if self.tty else f" {end}\n")
+            sys.stderr.flush()
+        return False
+
+
+def _say(msg: str, quiet: bool):
+    if not quiet:
+        print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
+
+
+# -----------------------------------------------------------------------------
+# Commands
+# -----------------------------------------------------------------------------
+
+
+def _load(scene_arg):
+    from .scenefile import load_description
+
+    path = scene_arg if scene_arg is not None else seed_scene_path()
+    return path, load_description(path)
+
+
+def _cmd_render(args) -> int:
+    from .imageio import WRITE_FORMATS
+    from .scenefile import check_render_value
+
+    q = args.quiet
+    # Check the cheap things before the expensive ones.
+    overrides = {}
+    for opt, key in (("width", "width"), ("height", "height"), ("spp", "spp"), ("depth", "max_depth")):
+        v = getattr(args, opt)
+        if v is not None:
+            msg = check_render_value(key, v)
+            if msg:
+                raise UsageError(f"--{opt}: {msg}")
+            overrides[key] = v
+    out = args.output
+    if out is not None:
+        ext = os.path.splitext(out)[1].lower()
+        if ext not in WRITE_FORMATS:
+            raise UsageError(f"{out}: cannot write images of type {ext or '(no extension)'!r}; expected one of "
+                             f"{', '.join(WRITE_FORMATS)}")
+        allowed = WRITE_FORMATS[ext][0]
+        if args.bits is not None and args.bits not in allowed:
+            raise UsageError(f"--bits: expected one of {allowed} for {ext} files, got {args.bits}")
+        folder = os.path.dirname(os.path.abspath(out))
+        if not os.path.isdir(folder):
+            raise UsageError(f"{out}: cannot write: folder {folder} does not exist")
+    t_start = time.perf_counter()
+    with _Phase("loading scene", q):
+        path, desc = _load(args.scene)
+        if overrides:
+            desc = desc.with_render(**overrides)
+        scene = desc.build()
+    if out is None:
+        out = f"{desc.name or 'render'}.png"
+    st = scene.settings
+    _say(f"{desc.source}: {st.width} x {st.height}, spp {st.spp}, depth {st.max_depth}, {st.shading} shading", q)
+
+    import equinox as eqx
+    import jax
+    import numpy as np
+
+    from .imageio import save_image
+    from .integrator import render
+
+    fn = eqx.filter_jit(lambda s: render(s))
+    with _Phase("compiling", q) as ph_c:
+        compiled = fn.lower(scene).compile()
+    with _Phase("rendering", q) as ph_r:
+        img = compiled(scene)
+        img = np.asarray(jax.block_until_ready(img))
+    bits = args.bits
+    meta = dict(scene=desc.name, source=os.path.abspath(path), width=st.width, height=st.height, spp=st.spp,
+                max_depth=st.max_depth, shading=st.shading, render_time_s=round(ph_r.elapsed, 4),
+                compile_time_s=round(ph_c.elapsed, 4))
+    if os.path.splitext(out)[1].lower() == ".exr" and bits == 8:
+        bits = None
+    save_image(out, img, metadata=meta, bits=bits)
+    total = time.perf_counter() - t_start
+    _say(f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
+         f"(compile {ph_c.elapsed:.1f} s, render {ph_r.elapsed:.1f} s)", q)
+    return 0
+
+
+def _fmt_vec(v):
+    return "(" + ", ".join(f"{x:g}" for x in v) + ")"
+
+
+def _fmt_rgb(v):
+    v = tuple(v)
+    return f"{v[0]:g}" if v[0] == v[1] == v[2] else _fmt_vec(v)
+
+
+def _si(n: float) -> str:
+    for unit, f in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{n:.0f}"
+
+
+def _material_kind(m, shading) -> str:
+    T, R = m.transparency, max(m.reflectivity)
+    dark = max(m.color) == 0.0
+    if T == 1.0 and dark and R == 0.0:
+        kind = f"glass (ior {m.ior:g})"
+    elif T == 0.0 and R > 0.0 and dark:
+        kind = "mirror"
+    elif T == 0.0 and R == 0.0:
+        kind = "diffuse"
+    else:
+        parts = []
+        if max(m.color) > 0 and T < 1:
+            parts.append("diffuse")
+        if R > 0:
+            parts.append(f"reflective {_fmt_rgb(m.reflectivity)}")
+        if T > 0:
+            parts.append(f"transparent {T:g} (ior {m.ior:g})")
+        kind = " + ".join(parts) or "black"
+    if shading == "classic" and m.specular > 0:
+        kind += f", Phong specular {m.specular:g}^{m.shininess:g}"
+    return kind
+
+
+def _texture_text(t) -> str:
+    if t is None:
+        return ""
+    if t.kind == "checker":
+        return f", checker {_fmt_rgb(t.color2)} x {t.scale:g}"
+    if t.kind == "stripes":
+        return f", stripes {_fmt_rgb(t.color2)} x {t.scale:g} along {_fmt_vec(t.direction)}"
+    if t.kind == "builtin":
+        return f", builtin image {t.name!r} {t.image.shape[1]} x {t.image.shape[0]}"
+    return f", image {t.file!r} {t.image.shape[1]} x {t.image.shape[0]}"
+
+
+def _object_text(o) -> str:
+    p = o.params
+    if o.type == "sphere":
+        g = f"center {_fmt_vec(p['center'])}, radius {p['radius']:g}"
+    elif o.type == "plane":
+        g = f"point {_fmt_vec(p['point'])}, normal {_fmt_vec(p['normal'])}"
+    elif o.type == "quad":
+        g = "corners " + " ".join(_fmt_vec(c) for c in p["corners"])
+    elif o.type == "triangle":
+        g = "vertices " + " ".join(_fmt_vec(c) for c in p["vertices"])
+    elif o.type == "box":
+        g = f"min {_fmt_vec(p['min'])}, max {_fmt_vec(p['max'])}"
+        if any(p.get("rotation", (0, 0, 0))):
+            g += f", rotation {_fmt_vec(p['rotation'])} deg"
+    elif o.type == "tetrahedron":
+        g = f"center {_fmt_vec(p['center'])}, size {p['size']:g}"
+    else:
+        src = f"{p['file']!r}, " if "file" in p else "inline, "
+        g = src + f"{len(p['vertices'])} vertices, {len(p['faces'])} triangles"
+    return f"{o.type:<11} {o.material:<14} {g}"
+
+
+def cost_estimate(desc) -> dict:
+    """Upper bounds on the work of one render of ``desc`` (a SceneDescription)."""
+    r = desc.render
+    branches = 2 if any(m.transparency > 0 for m in desc.materials.values()) else 1
+    specular = any(m.transparency > 0 or max(m.reflectivity) > 0 for m in desc.materials.values())
+    camera = r.width * r.height * r.spp
+    secondary = camera * branches * r.max_depth if specular else 0
+    shading_points = camera + secondary
+    shadow = shading_points * len(desc.lights)
+    c = desc.primitive_counts()
+    prims = c["sphere"] + c["plane"] + c["quad"] + c["box"] + c["triangles_total"]
+    return dict(pixels=r.width * r.height, camera_rays=camera, branches=branches, secondary_rays=secondary,
+                shadow_rays=shadow, primitives=prims, tests=(shading_points + shadow) * prims)
+
+
+def _cmd_info(args) -> int:
+    path, d = _load(args.scene)
+    r, c = d.render, d.camera
+    out = [f"scene {d.name!r} ({d.source})",
+           f"  shading     {d.shading}",
+           f"  image       {r.width} x {r.height}, spp {r.spp}, max_depth {r.max_depth}, "
+           f"textures {'filtered' if r.filter_textures else 'point-sampled'}",
+           f"  background  {_fmt_rgb(r.background)}" + (f", ambient {_fmt_rgb(r.ambient)}" if d.shading == "classic" else ""),
+           f"  camera      position {_fmt_vec(c.position)}, look_at {_fmt_vec(c.look_at)}, up {_fmt_vec(c.up)}, "
+           f"fov {c.fov:g} deg",
+           f"lights ({len(d.lights)}):"]
+    unit = "" if d.shading == "classic" else " W/sr"
+    for i, light in enumerate(d.lights):
+        out.append(f"  [{i}] position {_fmt_vec(light.position)}, intensity {_fmt_rgb(light.intensity)}{unit}")
+    out.append(f"materials ({len(d.materials)}):")
+    w = max(len(n) for n in d.materials)
+    for name, m in d.materials.items():
+        out.append(f"  {name:<{w}}  color {_fmt_rgb(m.color)}: {_material_kind(m, d.shading)}{_texture_text(m.texture)}")
+    out.append(f"objects ({len(d.objects)}):")
+    for i, o in enumerate(d.objects):
+        out.append(f"  [{i}] {_object_text(o)}")
+    counts = d.primitive_counts()
+    listed = ", ".join(f"{counts[k]} {k}{'es' if k == 'box' and counts[k] != 1 else ('s' if counts[k] != 1 else '')}"
+                       for k in ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh") if counts[k])
+    e = cost_estimate(d)
+    out += [f"estimated cost:",
+            f"  primitives  {listed or 'none'}; {e['primitives']} tested per ray "
+            f"({counts['triangles_total']} triangles)",
+            f"  rays        {_si(e['camera_rays'])} camera ({r.width} x {r.height} x {r.spp} spp)"
+            + (f" + up to {_si(e['secondary_rays'])} specular ({e['branches']} per sample and depth, "
+               f"depth {r.max_depth})" if e["secondary_rays"] else " (no specular bounces)")
+            + f" + up to {_si(e['shadow_rays'])} shadow ({len(d.lights)} light{'s' if len(d.lights) != 1 else ''})",
+            f"  work        up to {_si(e['tests'])} ray-primitive tests"]
+    print("\n".join(out))
+    return 0
+
+
+def main(argv: Optional[list] = None) -> int:
+    """Entry point of the ``raytrax`` command; returns the exit status."""
+    from .imageio import ImageError
+    from .scenefile import SceneError
+
+    parser = _build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command == "render":
+            return _cmd_render(args)
+        return _cmd_info(args)
+    except (UsageError, SceneError, ImageError, OSError) as e:
+        msg = " ".join(str(e).split("\n"))
+        print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; no output written", file=sys.stderr, flush=True)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
