@@ -34,7 +34,7 @@ from .materials import fresnel_dielectric, refract
 from .scene import Scene, Settings
 
 RAYS_PER_TILE = 16384
-SUBTILE = 1024
+SUBTILE = 4096
 EPS_REL = 1e-4
 
 
@@ -46,6 +46,7 @@ class RenderOptions:
     tile_rays: int = RAYS_PER_TILE
     subtile: int = SUBTILE
     jitter: bool = False
+    devices: int = 1
 
 
 def _gather_rows(table, idx):
@@ -268,18 +269,31 @@ def _render(scene: Scene, opts: RenderOptions, key):
     W, H, spp = st.width, st.height, st.spp
     P = W * H
     tile = max(1, min(P, opts.tile_rays // spp))
-    n_tiles = math.ceil(P / tile)
+    n_dev = opts.devices
+    n_tiles = math.ceil(P / tile / n_dev) * n_dev
     pix = jnp.minimum(jnp.arange(n_tiles * tile, dtype=jnp.int32), P - 1).reshape(n_tiles, tile)
-    kinds = prepare(scene)
+    ids = jnp.arange(n_tiles, dtype=jnp.int32)
 
-    def tile_fn(args):
-        pix_t, i = args
-        k = None if key is None else jax.random.fold_in(key, i)
-        o, d, spread = primary_rays(scene.camera, pix_t, W, H, spp, k)
-        rad = _trace(scene, kinds, o, d, spread, opts)
-        return rad.reshape(3, spp, tile).mean(1).T  # (tile, 3)
+    def run(scene, pix, ids, key):
+        kinds = prepare(scene)
 
-    out = jax.lax.map(jax.checkpoint(tile_fn), (pix, jnp.arange(n_tiles)))
+        def tile_fn(args):
+            pix_t, i = args
+            k = None if key is None else jax.random.fold_in(key, i)
+            o, d, spread = primary_rays(scene.camera, pix_t, W, H, spp, k)
+            rad = _trace(scene, kinds, o, d, spread, opts)
+            return rad.reshape(3, spp, tile).mean(1).T  # (tile, 3)
+
+        return jax.lax.map(jax.checkpoint(tile_fn), (pix, ids))
+
+    if n_dev > 1:
+        from jax.sharding import PartitionSpec as Spec
+
+        mesh = jax.make_mesh((n_dev,), ("tiles",), devices=jax.devices()[:n_dev],
+                             axis_types=(jax.sharding.AxisType.Auto,))
+        run = jax.shard_map(run, mesh=mesh, in_specs=(Spec(), Spec("tiles"), Spec("tiles"), Spec()),
+                            out_specs=Spec("tiles"), check_vma=False)
+    out = run(scene, pix, ids, key)
     return out.reshape(n_tiles * tile, 3)[:P].reshape(H, W, 3)
 
 
@@ -289,7 +303,7 @@ _render_jit = eqx.filter_jit(_render)
 def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] = None,
            spp: Optional[int] = None, max_depth: Optional[int] = None, key=None,
            filter_textures: Optional[bool] = None, branches: Optional[int] = None,
-           tile_rays: int = RAYS_PER_TILE) -> jax.Array:
+           tile_rays: int = RAYS_PER_TILE, devices=None) -> jax.Array:
     """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
 
     Keywords override the scene's own render settings (same names as the scene
@@ -298,11 +312,24 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
     has the scene's float dtype (float32, or float64 for a float64 scene with
     x64 enabled). Row 0 is the top row.
 
+    ``devices``: ``None`` renders on the default device; ``"all"`` or an
+    integer shards the image tiles over that many of ``jax.devices()`` with
+    ``jax.shard_map`` (same image, gradients summed over devices).
+    ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
+
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``.
     """
     over = {k: v for k, v in dict(width=width, height=height, spp=spp, max_depth=max_depth,
                                    filter_textures=filter_textures, branches=branches).items() if v is not None}
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
-    opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None)
+    if devices is None:
+        n_dev = 1
+    elif devices == "all":
+        n_dev = jax.device_count()
+    elif isinstance(devices, int) and 1 <= devices <= jax.device_count():
+        n_dev = devices
+    else:
+        raise ValueError(f"devices: expected None, 'all' or an integer in [1, {jax.device_count()}], got {devices!r}")
+    opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev)
     return _render_jit(scene, opts, key)

@@ -1,0 +1,63 @@
+"""Sharding the image over several devices and batching renders with vmap."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import raytrax as rt
+
+
+@pytest.fixture(scope="module")
+def scene():
+    b = rt.SceneBuilder("physical", width=24, height=16, spp=1, max_depth=2)
+    b.camera((0, 1, 5), (0, 0.5, 0), fov=40)
+    b.light((2, 5, 2), (50, 50, 50))
+    b.material("floor", (0.8, 0.8, 0.8), texture=rt.Checker((0.2, 0.2, 0.2), 2.0))
+    b.material("glass", (0, 0, 0), transparency=1, ior=1.5)
+    b.plane((0, 0, 0), (0, 1, 0), "floor")
+    b.sphere((0, 1, 0), 1.0, "glass")
+    return b.build()
+
+
+def test_four_host_devices_available():
+    # conftest.py forces four CPU devices; without them the tests below would not shard.
+    assert jax.device_count() >= 4
+
+
+def test_sharded_image_equals_single_device(scene):
+    one = rt.render(scene, tile_rays=64)
+    many = rt.render(scene, tile_rays=64, devices="all")
+    assert many.shape == one.shape
+    np.testing.assert_allclose(np.asarray(many), np.asarray(one), rtol=0, atol=1e-6)
+    assert float(one.mean()) > 0.01
+
+
+def test_sharded_gradient_equals_single_device(scene):
+    def loss(s, dev):
+        return jnp.mean(rt.render(s, tile_rays=64, devices=dev) ** 2)
+
+    g1 = eqx.filter_grad(lambda s: loss(s, None))(scene)
+    g4 = eqx.filter_grad(lambda s: loss(s, 4))(scene)
+    np.testing.assert_allclose(g4.lights.position, g1.lights.position, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(g4.materials.ior, g1.materials.ior, rtol=1e-5, atol=1e-9)
+    assert np.abs(np.asarray(g1.lights.position)).max() > 0
+
+
+def test_bad_device_count_is_a_clear_error(scene):
+    with pytest.raises(ValueError, match="devices"):
+        rt.render(scene, devices=10_000)
+
+
+def test_vmap_over_light_positions(scene):
+    offsets = jnp.linspace(-1.0, 1.0, 4, dtype=jnp.float32)
+    pos = scene.lights.position[None] + offsets[:, None, None] * jnp.asarray([1.0, 0.0, 0.0], jnp.float32)[None, None]
+
+    def one(p):
+        return rt.render(eqx.tree_at(lambda s: s.lights.position, scene, p), tile_rays=64)
+
+    batch = jax.vmap(one)(pos)
+    assert batch.shape == (4, 16, 24, 3)
+    for i in (0, 3):
+        np.testing.assert_allclose(np.asarray(batch[i]), np.asarray(one(pos[i])), rtol=1e-5, atol=1e-6)
