@@ -26,6 +26,7 @@ class Kind(NamedTuple):
     material: jax.Array  # (N,) int
     tfun: Callable
     hit: Callable  # (idx (n,), o, d, t0) -> (t, n, uv, rate)
+    crossings: Callable | None = None  # (ray, P, tmax) -> (n, B) surface crossings; None: one per hit
 
 
 class Hit(NamedTuple):
@@ -49,7 +50,8 @@ def prepare(scene) -> list[Kind]:
     sp = scene.spheres
     if sp.center.shape[0]:
         kinds.append(Kind("sphere", _ng(S.sphere_soa(sp)), sp.material, S.sphere_t,
-                          lambda i, o, d, t0: S.sphere_hit(sp.center[i].T, sp.radius[i], o, d, t0)))
+                          lambda i, o, d, t0: S.sphere_hit(sp.center[i].T, sp.radius[i], o, d, t0),
+                          S.sphere_crossings))
     pl = scene.planes
     if pl.point.shape[0]:
         kinds.append(Kind("plane", _ng(S.plane_soa(pl)), pl.material, S.plane_t,
@@ -94,7 +96,7 @@ def prepare(scene) -> list[Kind]:
             h = hb[i].T
             return S.box_hit(c, [h[0], h[1], h[2]], R, o, d, t0)
 
-        kinds.append(Kind("box", _ng(S.box_soa(bx)), bx.material, S.box_t, bhit))
+        kinds.append(Kind("box", _ng(S.box_soa(bx)), bx.material, S.box_t, bhit, S.box_crossings))
     return kinds
 
 
@@ -164,6 +166,12 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
     return Hit(valid, t, nrm, uv, rate, mat)
 
 
+def _crossings(k: Kind, ray2, P, tmax):
+    if k.crossings is not None:
+        return k.crossings(ray2, P, tmax)
+    return (k.tfun(ray2, P, 0.0) < tmax).astype(ray2[0].dtype)
+
+
 def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
     """For shadow rays ``o, d (3, n)`` and segment lengths ``tmax (n,)``: how many
     surfaces of each material the open segment ``(0, tmax)`` crosses, ``(n, M)``
@@ -177,8 +185,7 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
         onehot = jax.nn.one_hot(k.material, n_materials, dtype=o.dtype)
         N = k.material.shape[0]
         if N <= BLOCK:
-            T = k.tfun(ray2, {nm: v[None, :] for nm, v in k.soa.items()}, 0.0)
-            hit = (T < tmax).astype(o.dtype)
+            hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
             counts = counts + hit @ onehot
         else:
             P, valid, _ = _blocks(k.soa)
@@ -188,8 +195,8 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
 
             def body(c, blk):
                 Pb, vb, ohb = blk
-                T = k.tfun(ray2, {nm: v[None, :] for nm, v in Pb.items()}, 0.0)
-                hit = ((T < tmax) & vb[None, :]).astype(o.dtype)
+                hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
+                hit = jnp.where(vb[None, :], hit, 0.0)
                 return c + hit @ ohb, None
 
             counts, _ = jax.lax.scan(body, counts, (P, valid, oh))

@@ -225,6 +225,20 @@ def sphere_t(ray, P, tmin):
     return jnp.where((disc >= 0) & (P["r"] > 0), t, INF)
 
 
+def sphere_crossings(ray, P, tmax):
+    """Number of surface crossings (0, 1 or 2) of each ray's open segment ``(0, tmax)``."""
+    ox, oy, oz, dx, dy, dz = ray
+    ocx, ocy, ocz = ox - P["cx"], oy - P["cy"], oz - P["cz"]
+    b = dx * ocx + dy * ocy + dz * ocz
+    c = ocx * ocx + ocy * ocy + ocz * ocz - P["r"] * P["r"]
+    disc = b * b - c
+    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    ok = (disc > 0) & (P["r"] > 0)
+    n1 = ok & (-b - sq > 0) & (-b - sq < tmax)
+    n2 = ok & (-b + sq > 0) & (-b + sq < tmax)
+    return n1.astype(ox.dtype) + n2.astype(ox.dtype)
+
+
 def plane_soa(p: Planes):
     n = p.normal / jnp.maximum(jnp.linalg.norm(p.normal, axis=-1, keepdims=True), 1e-30)
     return dict(px=p.point[:, 0], py=p.point[:, 1], pz=p.point[:, 2], nx=n[:, 0], ny=n[:, 1], nz=n[:, 2])
@@ -322,7 +336,7 @@ def _box_local(ray, P):
     return ol, dl
 
 
-def box_t(ray, P, tmin):
+def _box_slab(ray, P):
     ol, dl = _box_local(ray, P)
     h = [P["hx"], P["hy"], P["hz"]]
     tn, tf = -INF, INF
@@ -336,6 +350,20 @@ def box_t(ray, P, tmin):
         hi = jnp.where(small, jnp.where(inside_slab, INF, -INF), jnp.maximum(t1, t2))
         tn = jnp.maximum(tn, lo)
         tf = jnp.minimum(tf, hi)
+    return tn, tf
+
+
+def box_crossings(ray, P, tmax):
+    """Number of surface crossings (0, 1 or 2) of each ray's open segment ``(0, tmax)``."""
+    tn, tf = _box_slab(ray, P)
+    ok = tn <= tf
+    n1 = ok & (tn > 0) & (tn < tmax)
+    n2 = ok & (tf > 0) & (tf < tmax)
+    return n1.astype(tn.dtype) + n2.astype(tn.dtype)
+
+
+def box_t(ray, P, tmin):
+    tn, tf = _box_slab(ray, P)
     t = jnp.where(tn > tmin, tn, tf)
     return jnp.where((tn <= tf) & (tf > tmin), t, INF)
 

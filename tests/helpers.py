@@ -21,3 +21,35 @@ def one_sphere_scene(shading="classic", *, width=16, height=16, spp=1, dtype=jnp
 
 def to_np(x):
     return np.asarray(x)
+
+
+def camera_rays_np(position, look_at, up, fov, width, height):
+    """Pixel-centre ray directions ``(height * width, 3)`` (row-major, row 0 at the
+    top) of a pinhole camera, computed independently of raytrax in numpy float64:
+    ``d = normalize(fwd + x tan(fov/2) (W/H) right + y tan(fov/2) up)``."""
+    import math
+
+    pos = np.asarray(position, np.float64)
+    fwd = np.asarray(look_at, np.float64) - pos
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(up, np.float64))
+    right /= np.linalg.norm(right)
+    upv = np.cross(right, fwd)
+    row, col = np.divmod(np.arange(width * height), width)
+    x = (col + 0.5) / width * 2 - 1
+    y = 1 - (row + 0.5) / height * 2
+    th = math.tan(math.radians(fov) / 2)
+    d = fwd + (x * th * width / height)[:, None] * right + (y * th)[:, None] * upv
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def ray_sphere_np(o, d, center, radius):
+    """Nearest ``t > 0`` of rays ``o, d (n, 3)`` (``d`` unit) with a sphere, inf on a miss."""
+    oc = np.asarray(o, np.float64) - np.asarray(center, np.float64)
+    b = (d * oc).sum(-1)
+    c = (oc * oc).sum(-1) - radius * radius
+    disc = b * b - c
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    t1, t2 = -b - sq, -b + sq
+    t = np.where(t1 > 0, t1, np.where(t2 > 0, t2, np.inf))
+    return np.where(disc >= 0, t, np.inf)

@@ -238,3 +238,6 @@ def test_2x2_is_smoother_than_1_sample_along_the_slanted_edge(aa_images):
     tv_exact = np.abs(np.diff(exact_coverage()[:, cols], axis=0)).sum()
     assert tv[4] < tv[1]
     assert abs(tv[4] - tv_exact) < abs(tv[1] - tv_exact)
+    # the largest step between vertical neighbours: a full 0 -> 1 jump with one sample
+    jump = {s: np.abs(np.diff(aa_images[s][:, cols], axis=0)).max() for s in (1, 4)}
+    assert jump[1] == 1.0 and jump[4] <= 0.5

@@ -465,8 +465,13 @@ def test_tetrahedron_in_scene_matches_its_triangles(tet_tris):
     tris, _ = tet_tris
     b1 = builder()
     b1.tetrahedron(TET_C, TET_A, "m")
+    # the same four faces as a mesh, padded to the cube mesh's shapes below (8 vertices,
+    # 12 faces: each face three times) so that both mesh queries share one compilation
+    _, first = np.unique(np.round(tris.reshape(-1, 3), 9), axis=0, return_index=True)
+    verts = tris.reshape(-1, 3)[first]  # exact vertex values
+    faces = np.array([[np.argmin(np.linalg.norm(verts - p, axis=1)) for p in tri] for tri in tris])
     b2 = builder()
-    b2.mesh(tris.reshape(-1, 3), np.arange(12).reshape(4, 3), "m")
+    b2.mesh(np.concatenate([verts, verts]), np.tile(faces, (3, 1)), "m")
     rng = np.random.default_rng(5)
     o = TET_C + 4 * rng_dirs(rng, 48)
     d = TET_C + rng.uniform(-1, 1, (48, 3)) - o
