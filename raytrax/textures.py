@@ -43,8 +43,10 @@ class Checker:
 @dataclasses.dataclass(frozen=True)
 class Stripes:
     """Stripes alternating the material colour and ``color2`` along ``direction``
-    ``(du, dv)`` in ``(u, v)``; ``scale`` stripe pairs... per unit: a stripe is
-    ``1/scale`` wide."""
+    ``(du, dv)`` in ``(u, v)``: the pattern coordinate is ``(u du + v dv) scale``
+    and each stripe is one unit of it wide. Filtering is exact for axis-aligned
+    directions; for diagonal ones the footprint width is ``|w_u du| + |w_v dv|``
+    (a box that slightly over-blurs)."""
 
     color2: tuple = (0.0, 0.0, 0.0)
     scale: float = 1.0
