@@ -88,6 +88,8 @@ class _Phase:
     """Prints ``raytrax: <what> ...`` and, when stderr is a terminal, a ticking
     elapsed time; then the time taken."""
 
+    open_line = False  # a progress line without its newline is on stderr
+
     def __init__(self, what: str, quiet: bool):
         self.what = what
         self.quiet = quiet
@@ -98,6 +100,7 @@ class _Phase:
     def __enter__(self):
         self.t0 = time.perf_counter()
         if not self.quiet:
+            _Phase.open_line = True
             sys.stderr.write(f"{PROG}: {self.what} ...")
             sys.stderr.flush()
             if self.tty:
@@ -120,6 +123,7 @@ class _Phase:
             end = f"{self.elapsed:.1f} s" if exc_type is None else "failed"
             sys.stderr.write(f"\r{PROG}: {self.what} ... {end}\n" if self.tty else f" {end}\n")
             sys.stderr.flush()
+            _Phase.open_line = False
         return False
 
 
@@ -167,15 +171,15 @@ def _cmd_render(args) -> int:
         if not os.path.isdir(folder):
             raise UsageError(f"{out}: cannot write: folder {folder} does not exist")
     t_start = time.perf_counter()
-    with _Phase("loading scene", q):
-        path, desc = _load(args.scene)
-        if overrides:
-            desc = desc.with_render(**overrides)
-        scene = desc.build()
+    path, desc = _load(args.scene)  # silent until it succeeds: a user error stays one line
+    if overrides:
+        desc = desc.with_render(**overrides)
+    scene = desc.build()
     if out is None:
         out = f"{desc.name or 'render'}.png"
     st = scene.settings
-    _say(f"{desc.source}: {st.width} x {st.height}, spp {st.spp}, depth {st.max_depth}, {st.shading} shading", q)
+    _say(f"loaded {desc.source} in {time.perf_counter() - t_start:.1f} s: {st.width} x {st.height}, "
+         f"spp {st.spp}, depth {st.max_depth}, {st.shading} shading", q)
 
     import equinox as eqx
     import jax
@@ -194,8 +198,6 @@ def _cmd_render(args) -> int:
     meta = dict(scene=desc.name, source=os.path.abspath(path), width=st.width, height=st.height, spp=st.spp,
                 max_depth=st.max_depth, shading=st.shading, render_time_s=round(ph_r.elapsed, 4),
                 compile_time_s=round(ph_c.elapsed, 4))
-    if os.path.splitext(out)[1].lower() == ".exr" and bits == 8:
-        bits = None
     save_image(out, img, metadata=meta, bits=bits)
     total = time.perf_counter() - t_start
     _say(f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
@@ -246,9 +248,9 @@ def _texture_text(t) -> str:
     if t is None:
         return ""
     if t.kind == "checker":
-        return f", checker {_fmt_rgb(t.color2)} x {t.scale:g}"
+        return f", checker with color2 {_fmt_rgb(t.color2)}, scale {t.scale:g}"
     if t.kind == "stripes":
-        return f", stripes {_fmt_rgb(t.color2)} x {t.scale:g} along {_fmt_vec(t.direction)}"
+        return f", stripes with color2 {_fmt_rgb(t.color2)}, scale {t.scale:g}, direction {_fmt_vec(t.direction)}"
     if t.kind == "builtin":
         return f", builtin image {t.name!r} {t.image.shape[1]} x {t.image.shape[0]}"
     return f", image {t.file!r} {t.image.shape[1]} x {t.image.shape[0]}"
@@ -344,7 +346,8 @@ def main(argv: Optional[list] = None) -> int:
         print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
         return 2
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; no output written", file=sys.stderr, flush=True)
+        start = "\n" if _Phase.open_line else ""
+        print(f"{start}{PROG}: interrupted; no output written", file=sys.stderr, flush=True)
         return 130
 
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import os
 import re
@@ -322,8 +323,8 @@ def _vec(v, path, n=3, what=None) -> tuple:
 
 def _rgb(v, path, *, hi=None) -> tuple:
     """An RGB triple: ``[r, g, b]`` or one number for grey; non-negative (and <= hi)."""
-    rng = "non-negative" if hi is None else f"in [0, {hi:g}]"
-    what = f"an [r, g, b] array of {rng} numbers (or one number for grey)"
+    rng = "non-negative numbers" if hi is None else f"numbers in [0, {hi:g}]"
+    what = f"an [r, g, b] array of {rng} (or one number for grey)"
     if _is_num(v):
         x = _num(v, path)
         c = (x, x, x)
@@ -362,6 +363,10 @@ def _check_keys(table: dict, path: str, allowed, required=(), context: str = "")
         if k not in table:
             ctx = f" ({context} needs {', '.join(required)})" if context else ""
             raise _KeyError(path or "(top level)", f"missing key {k!r}{ctx}")
+
+
+def _a(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 def _did_you_mean(value: str, options) -> str:
@@ -460,7 +465,7 @@ class _Parser:
             raise _KeyError(path, f"expected an existing {what} file, found no file {full}"
                             + ("" if os.path.isabs(rel) else f" ({rel!r} is read relative to {base})"))
         if os.path.isdir(full):
-            raise _KeyError(path, f"expected a {what} file, found a folder {full}")
+            raise _KeyError(path, f"expected {_a(what)} {what} file, found a folder {full}")
         return full
 
     # -- sections ---------------------------------------------------------------
@@ -591,7 +596,7 @@ class _Parser:
             hint = _did_you_mean(kind, TEXTURE_KINDS) if isinstance(kind, str) else ""
             raise _KeyError(f"{path}.kind", f"expected one of {', '.join(TEXTURE_KINDS)}, got "
                             f"{_got(kind)}{hint}")
-        _check_keys(t, path, TEXTURE_KEYS[kind], required=TEXTURE_REQUIRED[kind], context=f"a {kind} texture")
+        _check_keys(t, path, TEXTURE_KEYS[kind], required=TEXTURE_REQUIRED[kind], context=f"{_a(kind)} {kind} texture")
         d = TextureDesc(kind=kind)
         if kind in ("checker", "stripes"):
             if "color2" in t:
@@ -620,7 +625,11 @@ class _Parser:
                 hint = _did_you_mean(name, tx.BUILTIN_IMAGES) if isinstance(name, str) else ""
                 raise _KeyError(f"{path}.name", f"expected one of {', '.join(tx.BUILTIN_IMAGES)}, got "
                                 f"{_got(name)}{hint}")
-            d.name, d.image = name, tx.builtin_image(name)
+            d.name, d.image = name, _builtin(name)
+        if d.image is not None and self.shading == "physical" and float(d.image.max()) > 1.0:
+            raise _KeyError(f"{path}.{'file' if kind == 'image' else 'name'}",
+                            f"expected an image with values in [0, 1] in physical shading (an albedo), "
+                            f"found values up to {float(d.image.max()):.4g}")
         return d
 
     def object(self, t, path, materials) -> ObjectDesc:
@@ -633,7 +642,7 @@ class _Parser:
             raise _KeyError(f"{path}.type", f"expected one of {', '.join(OBJECT_TYPES)}, got "
                             f"{_got(typ)}{hint}")
         _check_keys(t, path, ("type", "material") + OBJECT_KEYS[typ],
-                    required=("type", "material") + OBJECT_REQUIRED[typ], context=f"a {typ}")
+                    required=("type", "material") + OBJECT_REQUIRED[typ], context=f"{_a(typ)} {typ}")
         mat = t["material"]
         if not isinstance(mat, str):
             raise _KeyError(f"{path}.material", f"expected a material name (a string), got {_show(mat)}")
@@ -787,6 +796,14 @@ def _push(lst, item):
     del lst[:-_MAX_SOURCES]
 
 
+@functools.lru_cache(maxsize=None)
+def _builtin(name: str) -> np.ndarray:
+    """A builtin image, read once per process (read-only)."""
+    img = tx.builtin_image(name)
+    img.setflags(write=False)
+    return img
+
+
 def _remember_sources(desc: SceneDescription):
     for m in desc.materials.values():
         t = m.texture
@@ -808,7 +825,7 @@ def _find_image_source(img: np.ndarray) -> Optional[TextureDesc]:
                 return t
     for name in tx.BUILTIN_IMAGES:  # a builtin used through the Python API
         try:
-            b = tx.builtin_image(name)
+            b = _builtin(name)
         except Exception:  # pragma: no cover - a sample image missing from scikit-image
             continue
         if b.shape == img.shape and np.array_equal(b.astype(img.dtype), img):
@@ -833,80 +850,78 @@ def describe_scene(scene: Scene) -> SceneDescription:
     """The :class:`SceneDescription` of a runtime :class:`Scene`: from its arrays and
     its static names (``material_names``, ``object_index``, ``settings``, ``name``).
     Building the result gives a scene with equal leaves."""
-    f32 = np.dtype(scene.dtype) == np.float32
+    import jax
 
-    def a(x):
-        return np.asarray(x)
+    f32 = np.dtype(scene.dtype) == np.float32
+    S = jax.tree_util.tree_map(np.asarray, scene)  # one transfer per leaf, then numpy indexing
 
     def vec(x):
-        return tuple(float(y) for y in a(x).reshape(-1))
+        return tuple(float(y) for y in np.asarray(x).reshape(-1))
 
     st = scene.settings
-    env = scene.environment
-    cam = scene.camera
-    camera = CameraDesc(vec(cam.position), vec(cam.look_at), vec(cam.up), float(a(cam.fov)))
+    env, cam = S.environment, S.camera
+    camera = CameraDesc(vec(cam.position), vec(cam.look_at), vec(cam.up), float(cam.fov))
     render = RenderDesc(st.width, st.height, st.spp, st.max_depth, vec(env.background), vec(env.ambient),
                         bool(st.filter_textures))
-    lp, li = a(scene.lights.position), a(scene.lights.intensity)
-    lights = [LightDesc(vec(lp[i]), vec(li[i])) for i in range(lp.shape[0])]
+    lights = [LightDesc(vec(p), vec(i)) for p, i in zip(S.lights.position, S.lights.intensity)]
 
-    M = scene.materials
-    names = list(scene.material_names) or [f"m{k}" for k in range(a(M.color).shape[0])]
-    kinds = a(M.tex_kind)
+    M = S.materials
+    names = list(scene.material_names) or [f"m{k}" for k in range(M.color.shape[0])]
     materials = {}
     for k, name in enumerate(names):
         tex = None
-        if kinds[k] == tx.CHECKER:
-            tex = TextureDesc("checker", color2=vec(M.tex_color2[k]), scale=float(a(M.tex_scale[k])))
-        elif kinds[k] == tx.STRIPES:
-            tex = TextureDesc("stripes", color2=vec(M.tex_color2[k]), scale=float(a(M.tex_scale[k])),
+        kind = int(M.tex_kind[k])
+        if kind == tx.CHECKER:
+            tex = TextureDesc("checker", color2=vec(M.tex_color2[k]), scale=float(M.tex_scale[k]))
+        elif kind == tx.STRIPES:
+            tex = TextureDesc("stripes", color2=vec(M.tex_color2[k]), scale=float(M.tex_scale[k]),
                               direction=vec(M.tex_direction[k]))
-        elif kinds[k] == tx.IMAGE:
-            img = a(M.images[int(a(M.tex_image[k]))])
+        elif kind == tx.IMAGE:
+            img = M.images[int(M.tex_image[k])]
             src = _find_image_source(img)
             if src is not None:
                 tex = dataclasses.replace(src, image=img)
             else:
                 tex = TextureDesc("image", image=img)  # written as a sidecar EXR by save_scene
         materials[name] = MaterialDesc(
-            color=vec(M.color[k]), ambient=float(a(M.ambient[k])), diffuse=float(a(M.diffuse[k])),
-            specular=float(a(M.specular[k])), shininess=float(a(M.shininess[k])),
-            reflectivity=vec(M.reflectivity[k]), transparency=float(a(M.transparency[k])),
-            ior=float(a(M.ior[k])), texture=tex)
+            color=vec(M.color[k]), ambient=float(M.ambient[k]), diffuse=float(M.diffuse[k]),
+            specular=float(M.specular[k]), shininess=float(M.shininess[k]),
+            reflectivity=vec(M.reflectivity[k]), transparency=float(M.transparency[k]),
+            ior=float(M.ior[k]), texture=tex)
 
     objects = []
     for kind, j in scene.object_index:
         if kind == "sphere":
-            g = scene.spheres
-            p = dict(center=vec(g.center[j]), radius=float(a(g.radius[j])))
+            g = S.spheres
+            p = dict(center=vec(g.center[j]), radius=float(g.radius[j]))
         elif kind == "plane":
-            g = scene.planes
+            g = S.planes
             p = dict(point=vec(g.point[j]), normal=vec(g.normal[j]))
         elif kind == "quad":
-            g = scene.quads
-            p = dict(corners=tuple(vec(r) for r in a(g.corners[j])))
+            g = S.quads
+            p = dict(corners=tuple(vec(r) for r in g.corners[j]))
         elif kind == "triangle":
-            g = scene.triangles
-            p = dict(vertices=tuple(vec(r) for r in a(g.vertices[j])))
+            g = S.triangles
+            p = dict(vertices=tuple(vec(r) for r in g.vertices[j]))
         elif kind == "box":
-            g = scene.boxes
+            g = S.boxes
             p = {"min": vec(g.lo[j]), "max": vec(g.hi[j])}
             rot = vec(g.rotation[j])
             if any(rot):
                 p["rotation"] = rot
         elif kind == "tetrahedron":
-            g = scene.tetrahedra
-            p = dict(center=vec(g.center[j]), size=float(a(g.size[j])))
+            g = S.tetrahedra
+            p = dict(center=vec(g.center[j]), size=float(g.size[j]))
         elif kind == "mesh":
-            g = scene.meshes[j]
-            v, f = a(g.vertices).astype(np.float64), a(g.faces).astype(np.int64)
-            p = dict(vertices=v, faces=f)
-            meta = _find_mesh_source(a(g.vertices), a(g.faces))
+            g = S.meshes[j]
+            p = dict(vertices=g.vertices.astype(np.float64), faces=g.faces.astype(np.int64))
+            meta = _find_mesh_source(g.vertices, g.faces)
             if meta is not None:
                 p.update(meta)
         else:  # pragma: no cover
             raise SceneError(f"{scene.name}: unknown object kind {kind!r}")
-        objects.append(ObjectDesc(kind, names[int(a(g.material[j] if kind != "mesh" else g.material))], p))
+        mat = g.material if kind == "mesh" else g.material[j]
+        objects.append(ObjectDesc(kind, names[int(mat)], p))
     return SceneDescription(name=scene.name, shading=st.shading, camera=camera, render=render, lights=lights,
                             materials=materials, objects=objects, source=f"<scene {scene.name}>", float32=f32)
 
