@@ -56,17 +56,17 @@ class Settings:
 
     def __post_init__(self):
         if self.shading not in SHADING_MODELS:
-            raise ValueError(f"shading: expected one of {SHADING_MODELS}, got {self.shading!r}")
+            raise ValueError(f"render.shading: expected one of {SHADING_MODELS}, got {self.shading!r}")
         for name in ("width", "height", "spp"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {v!r}")
+                raise ValueError(f"render.{name}: expected a positive integer, got {v!r}")
         if math.isqrt(self.spp) ** 2 != self.spp:
-            raise ValueError(f"spp: expected a square number (1, 4, 9, ...), got {self.spp}")
+            raise ValueError(f"render.spp: expected a square number (1, 4, 9, ...), got {self.spp}")
         if not isinstance(self.max_depth, int) or self.max_depth < 0:
-            raise ValueError(f"max_depth: expected an integer >= 0, got {self.max_depth!r}")
+            raise ValueError(f"render.max_depth: expected an integer >= 0, got {self.max_depth!r}")
         if self.branches < 1:
-            raise ValueError(f"branches: expected an integer >= 1, got {self.branches!r}")
+            raise ValueError(f"render.branches: expected an integer >= 1, got {self.branches!r}")
 
 
 class Environment(eqx.Module):
@@ -251,7 +251,8 @@ class SceneBuilder:
         n = np.cross(c[2] - c[0], c[3] - c[1])
         size = max(np.ptp(c, axis=0).max(), 1e-300)
         if np.linalg.norm(n) <= 1e-9 * size * size:
-            raise ValueError(f"object[{i}].corners: degenerate quad (zero area)")
+            raise ValueError(f"object[{i}].corners: expected a convex quad with non-zero area and corners in "
+                             f"order around its edge, got a degenerate or self-intersecting quad")
         n = n / np.linalg.norm(n)
         off = np.abs((c - c[0]) @ n).max()
         if off > 1e-6 * size:

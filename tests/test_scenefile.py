@@ -479,13 +479,13 @@ ERRORS = [
      r"object\[1\].corners: expected an array of 4 corners \(\[x, y, z\] each, in order around the edge\), "
      r"got an array of 3 items"),
     (add_object(SHAPES["quad"].format(c="[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [3.0, 0.0, 0.0]]")),
-     r"object\[1\].corners: degenerate quad \(zero area\)"),
+     r"object\[1\].corners: expected a convex quad with non-zero area and corners in order around its edge, got a degenerate or self-intersecting quad"),
     (add_object(SHAPES["quad"].format(c="[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.5], [0.0, 1.0, 0.0]]")),
      r"object\[1\].corners: the four corners are not coplanar \(off by .*\)"),
     (add_object(SHAPES["quad"].format(c="[[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.5, 0.0], [0.0, 2.0, 0.0]]")),
      r"object\[1\].corners: expected a convex quad with corners in order around its edge"),
     (add_object(SHAPES["quad"].format(c="[[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]")),
-     r"object\[1\].corners: degenerate quad \(zero area\)"),  # a bow-tie: its diagonals are parallel
+     r"object\[1\].corners: expected a convex quad with non-zero area and corners in order around its edge, got a degenerate or self-intersecting quad"),  # a bow-tie: its diagonals are parallel
     (add_object(SHAPES["triangle"].format(v="[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]]")),
      r"object\[1\].vertices: degenerate triangle \(zero area\)"),
     (add_object(SHAPES["triangle"].format(v="[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0]]")),
