@@ -198,6 +198,8 @@ def _cmd_render(args) -> int:
     meta = dict(scene=desc.name, source=os.path.abspath(path), width=st.width, height=st.height, spp=st.spp,
                 max_depth=st.max_depth, shading=st.shading, render_time_s=round(ph_r.elapsed, 4),
                 compile_time_s=round(ph_c.elapsed, 4))
+    if _INTERRUPTED.is_set():  # a Ctrl-C that JAX swallowed mid-compile still means: no output
+        raise KeyboardInterrupt
     save_image(out, img, metadata=meta, bits=bits)
     total = time.perf_counter() - t_start
     _say(f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
@@ -330,8 +332,41 @@ def _cmd_info(args) -> int:
     return 0
 
 
+_INTERRUPTED = threading.Event()
+
+
+def _on_sigint(signum, frame):
+    _INTERRUPTED.set()
+    raise KeyboardInterrupt
+
+
+def _enable_compilation_cache():
+    """Use jax's persistent compilation cache (``$JAX_COMPILATION_CACHE_DIR`` or
+    ``~/.cache/raytrax/jax``) so a second run of the same scene skips compiling."""
+    import jax
+
+    if not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir",
+                          os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 def main(argv: Optional[list] = None) -> int:
     """Entry point of the ``raytrax`` command; returns the exit status."""
+    import signal
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, _on_sigint)
+    _INTERRUPTED.clear()
+    try:
+        return _main(argv)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _main(argv):
     from .imageio import ImageError
     from .scenefile import SceneError
 
@@ -339,6 +374,7 @@ def main(argv: Optional[list] = None) -> int:
     try:
         args = parser.parse_args(argv)
         if args.command == "render":
+            _enable_compilation_cache()
             return _cmd_render(args)
         return _cmd_info(args)
     except (UsageError, SceneError, ImageError, OSError) as e:
