@@ -54,7 +54,7 @@ from .scene import Scene
 __all__ = ["fit", "FitResult", "SOLVERS", "DEFAULT_BOUNDS"]
 
 LEAST_SQUARES = ("levenberg_marquardt", "gauss_newton", "dogleg")
-MINIMISERS = ("bfgs", "gradient_descent", "nonlinear_cg")
+MINIMISERS = ("bfgs", "lbfgs", "gradient_descent", "nonlinear_cg")
 SOLVERS = LEAST_SQUARES + MINIMISERS
 
 #: Bounds applied by default, by the last component of a parameter's name.
@@ -68,7 +68,8 @@ DEFAULT_BOUNDS = {
     "fov": (0.0, 180.0),
 }
 
-_RENDER_KEYS = ("width", "height", "spp", "max_depth", "filter_textures", "branches", "tile_rays", "key")
+_RENDER_KEYS = ("width", "height", "spp", "max_depth", "filter_textures", "branches", "tile_rays", "devices",
+                "key")
 _TAGS = frozenset()
 _JACFWD_MAX = 32  # fitted numbers up to which the start check resolves single components
 
@@ -115,12 +116,39 @@ class FitResult:
                 f"{self.loss:.4g}, {self.seconds:.1f} s)\n{vals}")
 
 
+class _Frozen:
+    """A hashable pytree of (integer) NumPy arrays, kept static under ``jit``.
+
+    The scene's integer leaves (material ids, texture kinds) are passed this
+    way so that they stay concrete inside compiled steps (the renderer and
+    :func:`raytrax.with_parameters` read them) while the float leaves are
+    traced; equal contents hit the same compiled step.
+    """
+
+    def __init__(self, tree):
+        self.tree = jax.tree_util.tree_map(np.asarray, tree)
+        leaves, treedef = jax.tree_util.tree_flatten(self.tree)
+        self._key = (treedef, tuple((a.shape, a.dtype.str, a.tobytes()) for a in leaves))
+        self._hash = hash(self._key)
+
+    def __hash__(self):
+        return self._hash
+
+    def __eq__(self, other):
+        return isinstance(other, _Frozen) and self._hash == other._hash and self._key == other._key
+
+
+def _is_float_array(x):
+    return eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.inexact)
+
+
 # ---------------------------------------------------------------------------
 # The problem: a pytree (arrays are traced, the rest is static), so compiled
 # steps are reused across fits of the same structure.
 # ---------------------------------------------------------------------------
 class _Problem(eqx.Module):
-    scene: Scene
+    floats: Scene  # the scene's float leaves (None elsewhere)
+    ints: _Frozen = eqx.field(static=True)  # and the rest
     target: jax.Array  # (H, W, 3)
     weights: jax.Array  # (H, W, 3), sums to 1
     scale: jax.Array  # () 1 / loss at the start
@@ -128,10 +156,12 @@ class _Problem(eqx.Module):
     hi: dict
     key: Optional[jax.Array]
     names: tuple = eqx.field(static=True)
+    dtypes: tuple = eqx.field(static=True)  # the scene's dtype of each fitted parameter
     maps: tuple = eqx.field(static=True)  # per name: "none" | "lower" | "upper" | "both"
     by_path: bool = eqx.field(static=True)  # names are pytree paths (selector), not raytrax.parameters names
     render_opts: tuple = eqx.field(static=True)
     loss_fn: Optional[Callable] = eqx.field(static=True)
+    reg_fn: Optional[Callable] = eqx.field(static=True, default=None)
 
     # z (unconstrained) -> parameter values
     def values(self, z):
@@ -147,8 +177,17 @@ class _Problem(eqx.Module):
             out[name] = x
         return out
 
+    def scene_values(self, z):
+        """The parameter values at ``z`` in the scene's dtype (what goes into the scene)."""
+        v = self.values(z)
+        return {n: v[n].astype(dt) for n, dt in zip(self.names, self.dtypes)}
+
     def scene_at(self, z):
-        return _set_values(self.scene, self.values(z), self.by_path)
+        vals = self.scene_values(z)
+        # Integer leaves as NumPy while the values are written (raytrax.with_parameters
+        # reads the texture kinds), then as JAX arrays for the renderer.
+        scene = _set_values(eqx.combine(self.floats, self.ints.tree), vals, self.by_path)
+        return jax.tree_util.tree_map(lambda x: jnp.asarray(x) if isinstance(x, np.ndarray) else x, scene)
 
     def image(self, z):
         kw = dict(self.render_opts)
@@ -163,10 +202,17 @@ class _Problem(eqx.Module):
     # optimistix-facing functions: fn(y, args) -> (out, aux)
     def residual(self, z, args):
         d = self.image(z) - self.target
-        return (jnp.sqrt(self.weights * self.scale) * d).reshape(-1), None
+        r = (jnp.sqrt(self.weights) * d).reshape(-1).astype(self.scale.dtype)
+        return jnp.sqrt(self.scale) * r, None
+
+    def total_loss(self, img, z):
+        out = self.raw_loss(img).astype(self.scale.dtype)
+        if self.reg_fn is not None:
+            out = out + jnp.asarray(self.reg_fn(self.values(z))).astype(self.scale.dtype)
+        return out
 
     def objective(self, z, args):
-        return self.scale * self.raw_loss(self.image(z)), None
+        return self.scale * self.total_loss(self.image(z), z), None
 
 
 def _set_values(scene, values, by_path):
@@ -190,28 +236,24 @@ def _path_name(path):
 # Compiled pieces (module level, so their caches outlive one fit)
 # ---------------------------------------------------------------------------
 @eqx.filter_jit
-def _start(problem: _Problem, z, probe):
-    """Loss at the start, whether the image is finite, and for each fitted name
-    the sum over the (weighted) image of ``|d image / d z|``: per component
-    (forward-mode Jacobian) when there are few, else along one random
-    direction per name. Zero means no effect on the image."""
-    img = problem.image(z)
+def _effect(problem: _Problem, z, probe):
+    """For each fitted name, the sum over the (weighted) image of
+    ``|d image / d z|``: per component (forward-mode Jacobian) when there are
+    few, else along one random direction per name. Zero means no effect."""
     w = problem.weights
     size = sum(int(np.prod(v.shape)) for v in z.values())
     if size <= _JACFWD_MAX:
         J = jax.jacfwd(problem.image)(z)
-        effect = {n: jnp.sum(jnp.abs(j) * w.reshape(w.shape + (1,) * (j.ndim - 3)), axis=(0, 1, 2))
-                  for n, j in J.items()}
-    else:
-        names = list(z)
+        return {n: jnp.sum(jnp.abs(j) * w.reshape(w.shape + (1,) * (j.ndim - 3)), axis=(0, 1, 2))
+                for n, j in J.items()}
+    names = list(z)
 
-        def along(i):
-            t = {n: jnp.where(k == i, probe[n], jnp.zeros_like(probe[n])) for k, n in enumerate(names)}
-            return jnp.sum(jnp.abs(jax.jvp(problem.image, (z,), (t,))[1]) * w)
+    def along(i):
+        t = {n: jnp.where(k == i, probe[n], jnp.zeros_like(probe[n])) for k, n in enumerate(names)}
+        return jnp.sum(jnp.abs(jax.jvp(problem.image, (z,), (t,))[1]) * w)
 
-        per = jax.vmap(along)(jnp.arange(len(names)))
-        effect = {n: per[k] for k, n in enumerate(names)}
-    return problem.raw_loss(img), jnp.all(jnp.isfinite(img)), effect
+    per = jax.vmap(along)(jnp.arange(len(names)))
+    return {n: per[k] for k, n in enumerate(names)}
 
 
 def _fn(problem, least_squares):
@@ -248,7 +290,7 @@ def _step(problem, solver, z, dyn_state, least_squares):
         obj = fn(z_new, None)[0]
         obj = jnp.sum(obj ** 2) if least_squares else obj
     finite = jnp.isfinite(obj) & jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(z_new)]))
-    return z_new, eqx.filter(state, eqx.is_array), done, result, obj / problem.scale, finite, problem.values(z_new)
+    return z_new, eqx.filter(state, eqx.is_array), done, result, obj / problem.scale, finite, problem.scene_values(z_new)
 
 
 # ---------------------------------------------------------------------------
@@ -274,6 +316,8 @@ def _make_solver(solver, rtol, atol, learning_rate):
         return optx.Dogleg(rtol=rtol, atol=atol), True
     if key == "bfgs":
         return optx.BFGS(rtol=rtol, atol=atol), False
+    if key == "lbfgs":
+        return optx.LBFGS(rtol=rtol, atol=atol), False
     if key == "nonlinear_cg":
         return optx.NonlinearCG(rtol=rtol, atol=atol), False
     if key == "gradient_descent":
@@ -310,7 +354,7 @@ def _resolve_params(scene, params):
         if p not in available:
             near = difflib.get_close_matches(p, list(available), n=3)
             hint = f"; did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
-            raise KeyError(f"params: unknown parameter {p!r}{hint} (raytrax.parameters(scene) lists the "
+            raise ValueError(f"params: unknown parameter {p!r}{hint} (raytrax.parameters(scene) lists the "
                            f"{len(available)} names this scene has)")
     starts = {}
     for p in params:
@@ -354,7 +398,7 @@ def _resolve_bounds(names, starts, bounds, default_bounds):
     bounds = dict(bounds or {})
     for b in bounds:
         if b not in names:
-            raise KeyError(f"bounds: {b!r} is not one of the fitted parameters {list(names)}")
+            raise ValueError(f"bounds: {b!r} is not one of the fitted parameters {list(names)}")
     lo, hi, maps = {}, {}, []
     for n in names:
         shape, dt = starts[n].shape, starts[n].dtype
@@ -495,11 +539,13 @@ def fit(
     default_bounds: bool = True,
     loss: Union[str, Callable] = "mse",
     weights=None,
+    regularizer: Optional[Callable] = None,
     max_steps: int = 100,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
     learning_rate: Optional[float] = None,
     render_kwargs: Optional[dict] = None,
+    patience: int = 10,
     progress: Union[bool, str] = True,
     callback: Optional[Callable] = None,
     check: bool = True,
@@ -517,7 +563,7 @@ def fit(
       returning leaves of the scene pytree (``lambda s: s.lights.position`` or a
       tuple of leaves; these are then named by their path, ``"lights.position"``).
     - ``solver``: ``"levenberg_marquardt"`` (default), ``"gauss_newton"``,
-      ``"dogleg"`` (least squares on the residual image), ``"bfgs"``,
+      ``"dogleg"`` (least squares on the residual image), ``"bfgs"``, ``"lbfgs"``,
       ``"gradient_descent"`` (step ``learning_rate``, default 0.1 on the loss
       normalised to 1 at the start), ``"nonlinear_cg"`` (minimisers), or an
       optimistix solver instance.
@@ -528,16 +574,27 @@ def fit(
       ``loss(image, target) -> scalar`` (minimisers only).
     - ``weights``: per-pixel weights or a boolean mask, ``(H, W)``, ``(H, W, 1)``
       or ``(H, W, 3)``.
-    - ``max_steps``, ``rtol``, ``atol``: solver budget and tolerances (defaults
-      ``1e-5`` / ``1e-7`` for float32 scenes, ``1e-8`` / ``1e-12`` for float64;
-      the atol applies to the loss normalised to 1 at the start).
+    - ``regularizer``: ``regularizer(values) -> scalar`` added to the loss
+      (``values``: the fitted parameters by name, in their bounded form), e.g. a
+      smoothness prior on a texture; minimisers only. The loss history then
+      holds the loss plus the regulariser.
+    - ``max_steps``, ``rtol``, ``atol``: solver budget and the solver's own
+      tolerances (defaults ``1e-5`` for float32 scenes, ``1e-8`` for float64;
+      ``atol`` is in units of the start: parameters are the solver's
+      unconstrained ones, residuals are normalised to an RMS of 1 at the start,
+      the minimisers' loss to 1).
+    - ``patience``: also stop (as converged, "stalled") when the loss has
+      improved by less than 0.1% over this many steps: a float32 render has a
+      noise floor below which no step is accepted.
     - ``render_kwargs``: options for :func:`raytrax.render` (``width``,
       ``height``, ``spp``, ``max_depth``, ``key``...).
     - ``progress``: ``True`` prints a line per step (step, loss, parameter
       values), ``"bar"`` shows a tqdm bar, ``False`` is silent.
     - ``callback``: ``callback(step, loss, values)`` called after every step.
     - ``check``: before fitting, check that every fitted number has an effect
-      on the image (a non-zero derivative); raise naming those that do not.
+      on the image (a non-zero derivative); raise naming those that do not
+      (costs one forward-mode derivative of the render, compiled once per
+      scene structure and parameter set).
     - ``throw``: raise on a non-finite loss (otherwise stop and report it in
       the result).
 
@@ -554,7 +611,9 @@ def fit(
     dtype = scene.dtype
     f64 = jnp.dtype(dtype) == jnp.dtype(jnp.float64)
     rtol = (1e-8 if f64 else 1e-5) if rtol is None else float(rtol)
-    atol = (1e-12 if f64 else 1e-7) if atol is None else float(atol)
+    atol = (1e-8 if f64 else 1e-5) if atol is None else float(atol)
+    if not isinstance(patience, int) or patience < 1:
+        raise ValueError(f"patience: expected a positive integer, got {patience!r}")
     opt, least_squares = _make_solver(solver, rtol, atol, learning_rate)
     if loss == "mse":
         loss_fn = None
@@ -566,29 +625,44 @@ def fit(
         loss_fn = loss
     else:
         raise ValueError(f"loss: expected 'mse' or a function loss(image, target) -> scalar, got {loss!r}")
+    if regularizer is not None:
+        if not callable(regularizer):
+            raise TypeError(f"regularizer: expected a function values -> scalar, got {regularizer!r}")
+        if least_squares:
+            raise ValueError("regularizer: a regularised loss needs a minimiser (solver='bfgs', 'lbfgs', "
+                             "'gradient_descent' or 'nonlinear_cg')")
 
     names, starts, by_path = _resolve_params(scene, params)
     lo, hi, maps = _resolve_bounds(names, starts, bounds, default_bounds)
     render_opts, key, shape = _render_opts(scene, render_kwargs)
     target_a, weights_a = _target_and_weights(target, weights, shape, dtype)
-    z0 = {n: jnp.asarray(_to_unconstrained(starts[n], lo[n], hi[n], k), starts[n].dtype)
-          for n, k in zip(names, maps)}
+    # The solver works in float64 when JAX allows it (x64 on), whatever the
+    # scene's dtype: quasi-Newton updates in float32 stall near the optimum.
+    sdt = jnp.dtype(jnp.float64) if jax.config.jax_enable_x64 else jnp.dtype(dtype)
+    z0 = {n: jnp.asarray(_to_unconstrained(starts[n], lo[n], hi[n], k), sdt) for n, k in zip(names, maps)}
+    lo = {n: v.astype(sdt) for n, v in lo.items()}
+    hi = {n: v.astype(sdt) for n, v in hi.items()}
 
-    problem = _Problem(scene=scene, target=target_a, weights=weights_a, scale=jnp.asarray(1.0, dtype),
-                       lo=lo, hi=hi, key=key, names=names, maps=maps, by_path=by_path,
-                       render_opts=render_opts, loss_fn=loss_fn)
+    floats, ints = eqx.partition(scene, _is_float_array)
+    problem = _Problem(floats=floats, ints=_Frozen(ints), target=target_a, weights=weights_a, scale=jnp.asarray(1.0, sdt),
+                       lo=lo, hi=hi, key=key, names=names, dtypes=tuple(str(starts[n].dtype) for n in names),
+                       maps=maps, by_path=by_path,
+                       render_opts=render_opts, loss_fn=loss_fn, reg_fn=regularizer)
 
     # -- start: loss, finiteness, effect of each parameter ----------------
     rng = np.random.default_rng(0)
-    probe = {n: jnp.asarray(rng.uniform(0.5, 1.5, z0[n].shape), z0[n].dtype) for n in names}
-    loss0, img_finite, g = _start(problem, z0, probe)
-    loss0 = float(loss0)
-    if not bool(img_finite):
+    probe = {n: jnp.asarray(rng.uniform(0.5, 1.5, z0[n].shape), sdt) for n in names}
+    # The start's image outside jit: the render is compiled once per scene
+    # structure, so this reuses the compilation that rendered the target.
+    img0 = problem.image(z0)
+    loss0 = float(problem.total_loss(img0, z0))
+    if not bool(jnp.all(jnp.isfinite(img0))):
         raise FloatingPointError("the render at the start contains non-finite values (nan or inf); "
                                  "check the start parameters")
     if not math.isfinite(loss0):
         raise FloatingPointError(f"the loss at the start is not finite ({loss0})")
     if check:
+        g = _effect(problem, z0, probe)
         dead, part = [], []
         for n in names:
             gz = np.asarray(g[n])
@@ -607,7 +681,8 @@ def fit(
         if part:
             warnings.warn(f"fit: component(s) {', '.join(part)} have no effect on the image at the start "
                           "(zero derivative); they will stay where they are", RuntimeWarning, stacklevel=2)
-    start_values = {n: np.asarray(v) for n, v in problem.values(z0).items()}
+    v0 = problem.scene_values(z0)
+    start_values = {n: np.asarray(v0[n]) for n in names}
     reporter = _Reporter(progress, max_steps, names)
     history = [loss0]
     p_history = [start_values]
@@ -622,13 +697,16 @@ def fit(
                          loss_history=np.asarray(history), param_history=p_history, steps=0,
                          converged=True, result=optx.RESULTS.successful, message=msg, solver=opt,
                          seconds=time.perf_counter() - t_start)
-    problem = eqx.tree_at(lambda p: p.scale, problem, jnp.asarray(1.0 / loss0, dtype))
+    # Least squares: residuals of RMS 1 at the start; minimisers: loss 1 at the start.
+    n_eff = float(np.count_nonzero(np.asarray(weights_a))) if least_squares else 1.0
+    problem = eqx.tree_at(lambda p: p.scale, problem, jnp.asarray(n_eff / loss0, sdt))
 
     # -- iterate ------------------------------------------------------------
     z = z0
     best = (loss0, z0, start_values)
     dyn = _init(problem, opt, z, least_squares)
-    steps, converged, interrupted, nonfinite = 0, False, False, False
+    steps, converged, interrupted, nonfinite, stalled = 0, False, False, False, False
+    best_at = [loss0]  # best loss after each step
     result = optx.RESULTS.successful
     try:
         for steps in range(1, max_steps + 1):
@@ -638,7 +716,7 @@ def fit(
                 nonfinite = True
                 break
             z = z_new
-            vals = {n: np.asarray(v) for n, v in vals.items()}
+            vals = {n: np.asarray(vals[n]) for n in names}
             history.append(cur)
             p_history.append(vals)
             if cur <= best[0]:
@@ -646,8 +724,12 @@ def fit(
             reporter(steps, cur, vals)
             if callback is not None:
                 callback(steps, cur, vals)
+            best_at.append(best[0])
             if bool(done) or result != optx.RESULTS.successful:
                 converged = bool(done) and result == optx.RESULTS.successful
+                break
+            if steps >= patience and best_at[-1] > (1.0 - 1e-3) * best_at[-1 - patience]:
+                stalled = converged = True
                 break
     except KeyboardInterrupt:
         interrupted = True
@@ -662,6 +744,9 @@ def fit(
         result = optx.RESULTS.nonfinite
     elif interrupted:
         msg = f"interrupted after {steps - 1} steps; returning the best point so far"
+    elif stalled:
+        msg = (f"converged in {steps} steps (stalled: the loss improved by less than 0.1% in the last "
+               f"{patience} steps)")
     elif converged:
         msg = f"converged in {steps} steps"
     elif result != optx.RESULTS.successful:
@@ -671,7 +756,7 @@ def fit(
         msg = f"did not converge within max_steps={max_steps} steps"
     _, z_best, vals_best = best
     reporter.close(f"{msg}; loss {loss0:.4g} -> {best[0]:.4g}")
-    if not converged and not interrupted and not nonfinite:
+    if not converged and not interrupted:
         warnings.warn(f"fit: {msg} (loss {loss0:.4g} -> {best[0]:.4g}); the result may be inaccurate: "
                       "raise max_steps, loosen rtol/atol, or check the problem", RuntimeWarning, stacklevel=2)
     return FitResult(
