@@ -5,6 +5,7 @@ from .integrator import RenderOptions, render
 from .lights import PointLights
 from .materials import Materials, fresnel_dielectric, refract
 from .params import parameters, with_parameters
+from .fit import FitResult, fit
 from .scene import Environment, Scene, SceneBuilder, Settings
 from .shapes import Boxes, Mesh, Planes, Quads, Spheres, Tetrahedra, Triangles
 from .textures import Checker, ImageTexture, Stripes, builtin_image
