@@ -20,10 +20,12 @@ interrupted write never leaves a half-written (or any) output file.
 from __future__ import annotations
 
 import os
-import tempfile
 from typing import Mapping, Optional
 
+
 import numpy as np
+
+from ._atomic import atomic_path
 
 __all__ = ["ImageError", "save_image", "load_image", "load_image_metadata", "linear_to_srgb",
            "srgb_to_linear", "to_display", "show", "WRITE_FORMATS"]
@@ -139,9 +141,7 @@ def save_image(path, img, *, metadata: Optional[Mapping] = None, bits: Optional[
         # EXR keeps typed attributes; PNG/JPEG text chunks keep strings only.
         _set_attr(spec, f"raytrax:{k}", v if ext == ".exr" else str(v))
 
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=ext) as tmp:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
             raise OSError(f"{path}: cannot write: {oiio.geterror()}")
@@ -153,16 +153,6 @@ def save_image(path, img, *, metadata: Optional[Mapping] = None, bits: Optional[
         out.close()
         if not ok:
             raise OSError(f"{path}: cannot write: {msg}")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _open(path):

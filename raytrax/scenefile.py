@@ -37,7 +37,6 @@ import functools
 import math
 import os
 import re
-import tempfile
 import tomllib
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -45,6 +44,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from . import textures as tx
+from ._atomic import atomic_path
 from .scene import SHADING_MODELS, Scene, SceneBuilder
 
 __all__ = ["SceneError", "SceneDescription", "CameraDesc", "RenderDesc", "LightDesc", "MaterialDesc",
@@ -1075,21 +1075,8 @@ def dumps_scene(desc: SceneDescription, folder: Optional[str] = None, *, sidecar
 
 
 def _atomic_write(path: str, data: bytes):
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(data)
 
 
 def save_scene(scene: Union[Scene, SceneDescription], path) -> str:
