@@ -59,7 +59,6 @@ kernels); :func:`ensure_mitsuba` says so instead of failing obscurely.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
@@ -71,10 +70,13 @@ How the raytrax and Mitsuba configurations differ:
   from point lights at every diffuse hit (hard shadows, every object occludes),
   ideal mirror / smooth dielectric chains up to max_depth specular interactions,
   black background, no indirect diffuse light.
-- Mitsuba uses its own intersection (Embree-like kernels, analytic spheres), its
-  own BSDFs (twosided diffuse, conductor 'none', dielectric) and point emitters;
-  the Whitted path logic is a ~60-line Python SamplingIntegrator in
-  benchmarks/mitsuba_scene.py that follows *every* delta branch (full tree).
+- Mitsuba uses its own intersection (Embree BVH, analytic spheres), its own
+  BSDFs (twosided diffuse, conductor 'none', dielectric) and point emitters; the
+  Whitted path logic is a ~70-line Python integrator in
+  benchmarks/mitsuba_scene.py (a subclass of Mitsuba's ADIntegrator, so
+  sampler, camera rays and film splatting are Mitsuba's code), run as a
+  wavefront that compacts live rays at each depth and follows *every* delta
+  branch (full tree). raytrax tests every ray against every primitive (no BVH).
 - raytrax keeps at most `branches` (= 2 with glass) specular rays per camera
   sample per depth, dropping the lightest; Mitsuba's integrator keeps all of them.
 - Sampling: raytrax uses the cell centres of an n x n grid per pixel; Mitsuba's
@@ -83,8 +85,10 @@ How the raytrax and Mitsuba configurations differ:
 - Infinite planes become a Mitsuba rectangle of half-size 1e3 x the camera
   distance; shadow-ray offsets differ (raytrax 1e-4 relative along the normal,
   Mitsuba its own ray epsilon).
-- Mitsuba runs in float32 with its LLVM JIT (all cores); raytrax in float32 on
-  XLA:CPU."""
+- Mitsuba runs in float32 with its LLVM JIT on all cores; raytrax in float32 on
+  XLA:CPU. Mitsuba's gradient is Dr.Jit reverse mode through the same integrator
+  at raytrax's sample positions, w.r.t. the light positions only (its dielectric
+  IOR is not differentiable); raytrax's also covers the IORs."""
 
 
 class MitsubaUnavailable(RuntimeError):
@@ -163,9 +167,18 @@ def _register_integrator(mi, dr):
     global _WHITTED_CLS
     if _WHITTED_CLS is not None:
         return
+    from mitsuba.ad.integrators.common import ADIntegrator
 
-    class Whitted(mi.SamplingIntegrator):
-        """Direct light at every hit; both delta lobes followed deterministically."""
+    class Whitted(ADIntegrator):
+        """Whitted paths: direct light at every hit, both delta lobes followed.
+
+        Wavefront form: depth by depth, the live rays (non-zero weight) are
+        compacted (``dr.compress``) so the full tree costs only the rays that
+        exist; each ray carries the index of its camera sample, and radiance
+        is scatter-added there. Subclassing Mitsuba's ``ADIntegrator`` reuses its
+        ``render``: sampler, sensor rays and box-filtered film splatting are
+        Mitsuba's own code.
+        """
 
         def __init__(self, props):
             super().__init__(props)
@@ -174,46 +187,81 @@ def _register_integrator(mi, dr):
             self.background = [float(bg[0]), float(bg[1]), float(bg[2])]
             self.counts = None  # dict of ray counts when counting is on
 
-        def _count(self, kind, mask):
-            if self.counts is not None:
-                self.counts[kind] = self.counts.get(kind, 0) + int(dr.count(mask))
-
-        def trace(self, scene, ray, w, depth, active):
+        def trace(self, scene, ray, counts=None):
+            """Radiance ``mi.Color3f`` of the rays ``ray`` (one per lane)."""
+            N = dr.width(ray.d)
             bg = mi.Color3f(*self.background)
-            self._count("specular" if depth else "camera", active)
-            si = scene.ray_intersect(ray, active)
-            hit = active & si.is_valid()
-            L = dr.select(active & ~hit, w * bg, mi.Color3f(0.0))
-            bsdf = si.bsdf()
-            ctx = mi.BSDFContext()
-            for em in scene.emitters():
-                ds, spec = em.sample_direction(si, mi.Point2f(0.5, 0.5), hit)
-                f = bsdf.eval(ctx, si, si.to_local(ds.d), hit)  # BSDF * cosine
-                need = hit & (dr.max(f) > 0.0) & (dr.max(spec) > 0.0)
-                self._count("shadow", need)
-                blocked = scene.ray_test(si.spawn_ray_to(ds.p), need)
-                L += dr.select(need & ~blocked, w * f * spec, mi.Color3f(0.0))
-            for lobe in (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.DeltaTransmission):
-                cx = mi.BSDFContext(mi.TransportMode.Radiance, int(lobe))
-                bs, wk = bsdf.sample(cx, si, 0.0, mi.Point2f(0.5, 0.5), hit)
-                wc = w * wk
-                go = hit & (bs.pdf > 0.0) & (dr.max(wc) > 0.0)
-                if depth < self.max_depth:
-                    child = si.spawn_ray(si.to_world(bs.wo))
-                    L += self.trace(scene, child, dr.select(go, wc, mi.Color3f(0.0)), depth + 1, go)
-                else:
-                    L += dr.select(go, wc * bg, mi.Color3f(0.0))
-            return L
+            acc = dr.zeros(mi.Color3f, N)
+            sid = dr.arange(mi.UInt32, N)
+            w = dr.full(mi.Color3f, 1.0, N)
+            o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
+            emitters = scene.emitters()
+            for depth in range(self.max_depth + 1):
+                n = dr.width(d)
+                if n == 0:
+                    break
+                if counts is not None:
+                    counts["specular" if depth else "camera"] = counts.get("specular" if depth else "camera", 0) + n
+                si = scene.ray_intersect(mi.Ray3f(o, d), +mi.RayFlags.All, mi.Bool(depth == 0))
+                hit = si.is_valid()
+                L = dr.select(hit, mi.Color3f(0.0), w * bg)
+                bsdf = si.bsdf()
+                ctx = mi.BSDFContext()
+                for em in emitters:
+                    ds, spec = em.sample_direction(si, mi.Point2f(0.5, 0.5), hit)
+                    f = bsdf.eval(ctx, si, si.to_local(ds.d), hit)  # BSDF value times cosine
+                    need = hit & (dr.max(f) > 0.0) & (dr.max(spec) > 0.0)
+                    if counts is not None:
+                        counts["shadow"] = counts.get("shadow", 0) + int(dr.count(need)[0])
+                    blocked = scene.ray_test(si.spawn_ray_to(ds.p), need)
+                    L += dr.select(need & ~blocked, w * f * spec, mi.Color3f(0.0))
+                kids = []
+                for lobe in (mi.BSDFFlags.DeltaReflection, mi.BSDFFlags.DeltaTransmission):
+                    cx = mi.BSDFContext(mi.TransportMode.Radiance, int(lobe))
+                    # sample1 = 0: a blendbsdf(diffuse, conductor) picks its conductor.
+                    bs, wk = bsdf.sample(cx, si, 0.0, mi.Point2f(0.5, 0.5), hit)
+                    wc = w * wk
+                    go = hit & (bs.pdf > 0.0) & (dr.max(wc) > 0.0)
+                    if depth == self.max_depth:
+                        L += dr.select(go, wc * bg, mi.Color3f(0.0))
+                    else:
+                        kids.append((si.spawn_ray(si.to_world(bs.wo)), wc, go))
+                dr.scatter_reduce(dr.ReduceOp.Add, acc, L, sid)
+                if not kids:
+                    break
+                # Compact the live children of both lobes into the next wavefront.
+                kids = [(r, wc, dr.compress(go)) for r, wc, go in kids]
+                kids = [k for k in kids if dr.width(k[2]) > 0]
+                if not kids:
+                    break
+                sel = [s for _, _, s in kids]
+                o = _cat(mi.Point3f, [dr.gather(mi.Point3f, r.o, s) for (r, _, _), s in zip(kids, sel)])
+                d = _cat(mi.Vector3f, [dr.gather(mi.Vector3f, r.d, s) for (r, _, _), s in zip(kids, sel)])
+                w = _cat(mi.Color3f, [dr.gather(mi.Color3f, wc, s) for (_, wc, _), s in zip(kids, sel)])
+                sids = [dr.gather(mi.UInt32, sid, s) for s in sel]
+                sid = sids[0] if len(sids) == 1 else dr.concat(sids)
+                dr.eval(o, d, w, sid, acc)
+            dr.eval(acc)
+            return acc
 
-        def sample(self, scene, sampler, ray, medium=None, active=True):
-            L = self.trace(scene, mi.Ray3f(ray), mi.Color3f(1.0), 0, mi.Bool(active))
-            return L, mi.Bool(active), []
+        def sample(self, mode, scene, sampler, ray, depth=None, δL=None, δaovs=None, state_in=None,
+                   active=True, **kwargs):
+            if mode != dr.ADMode.Primal:
+                raise NotImplementedError("the Whitted reference integrator renders in primal mode only "
+                                          "(differentiate render_grid with dr.backward instead)")
+            L = self.trace(scene, ray, self.counts)
+            return L, dr.full(mi.Bool, True, dr.width(L)), [], None
 
         def aov_names(self):
             return []
 
         def to_string(self):
-            return f"Whitted[max_depth={self.max_depth}]"
+            return f"RaytraxWhitted[max_depth={self.max_depth}]"
+
+    def _cat(T, parts):
+        if len(parts) == 1:
+            return parts[0]
+        return T(*(dr.concat([p[c] for p in parts]) for c in range(3)))
 
     mi.register_integrator("raytrax_whitted", lambda props: Whitted(props))
     _WHITTED_CLS = Whitted
@@ -226,11 +274,6 @@ def _register_integrator(mi, dr):
 
 def _np(x):
     return np.asarray(x, dtype=np.float64)
-
-
-def _rgb(mi, c):
-    c = [float(v) for v in c]
-    return {"type": "rgb", "value": c}
 
 
 def material_bsdf(color, reflectivity, transparency, ior):
@@ -409,10 +452,6 @@ def load(scene, **kw):
     return mi.load_dict(scene_dict(scene, **kw))
 
 
-def integrator_of(mscene):
-    return mscene.integrator()
-
-
 def render_native(mscene, spp=None, seed=0):
     """``mi.render`` with the scene's own sampler and box-filtered film: ``(H, W, 3)`` float32."""
     mi = ensure_mitsuba()
@@ -420,9 +459,9 @@ def render_native(mscene, spp=None, seed=0):
     return np.array(img, dtype=np.float32)
 
 
-def grid_radiance(mscene, width, height, spp, counts=None):
-    """Dr.Jit image ``mi.TensorXf (H, W, 3)``: the Whitted integrator at raytrax's
-    sample positions (``n x n`` cell centres per pixel), box-averaged per pixel."""
+def grid_rays(mscene, width, height, spp):
+    """Camera rays through Mitsuba's sensor at raytrax's sample positions (``n x n``
+    cell centres per pixel), pixel-major: sample ``k`` of pixel ``p`` is lane ``p * spp + k``."""
     import drjit as dr
 
     mi = ensure_mitsuba()
@@ -430,7 +469,6 @@ def grid_radiance(mscene, width, height, spp, counts=None):
     if n * n != spp:
         raise ValueError("spp must be a square number")
     sensor = mscene.sensors()[0]
-    integ = mscene.integrator()
     N = width * height * spp
     idx = dr.arange(mi.UInt32, N)
     pix = idx // spp
@@ -441,14 +479,19 @@ def grid_radiance(mscene, width, height, spp, counts=None):
     sy = (mi.Float(s // n) + 0.5) / n
     pos = mi.Point2f((mi.Float(col) + sx) / width, (mi.Float(row) + sy) / height)
     ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), pos, mi.Point2f(0.5, 0.5))
-    integ.counts = counts
-    try:
-        L = integ.trace(mscene, ray, mi.Color3f(1.0), 0, mi.Bool(True))
-    finally:
-        integ.counts = None
-    img = [dr.block_sum(L[c], spp) / spp for c in range(3)]
-    flat = dr.ravel(mi.Color3f(img[0], img[1], img[2]))  # interleaved RGB per pixel
-    return mi.TensorXf(flat, shape=(height, width, 3))
+    return ray
+
+
+def grid_radiance(mscene, width, height, spp, counts=None, rays=None):
+    """Dr.Jit image ``mi.TensorXf (H, W, 3)``: the Whitted integrator at raytrax's
+    sample positions, box-averaged per pixel (differentiable with ``dr.backward``)."""
+    import drjit as dr
+
+    mi = ensure_mitsuba()
+    ray = grid_rays(mscene, width, height, spp) if rays is None else rays
+    L = mscene.integrator().trace(mscene, ray, counts)
+    img = mi.Color3f(*(dr.block_sum(L[c], spp) / spp for c in range(3)))
+    return mi.TensorXf(dr.ravel(img), shape=(height, width, 3))
 
 
 def render_grid(mscene, width, height, spp):

@@ -22,7 +22,7 @@ def physical_scene(width=160, height=120, spp=16, max_depth=5, *, diffuse=True, 
     b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth,
                         background=(0.0, 0.0, 0.0), name="physical")
     b.camera(position=(0.0, 2.2, 7.0), look_at=(0.0, 0.8, 0.0), up=(0.0, 1.0, 0.0), fov=40.0)
-    all_lights = [((3.0, 6.0, 4.0), (40.0, 36.0, 30.0)), ((-4.0, 5.0, 2.0), (12.0, 15.0, 22.0))]
+    all_lights = [((3.0, 6.0, 4.0), (120.0, 108.0, 90.0)), ((-4.0, 5.0, 2.0), (36.0, 45.0, 66.0))]
     for i in lights:
         b.light(*all_lights[i])
     b.material("floor", color=(0.7, 0.7, 0.7))
@@ -50,7 +50,7 @@ def simple_scene(width=160, height=120, spp=16, max_depth=5):
     """Floor + one diffuse sphere + one point light (must agree with Mitsuba to > 40 dB)."""
     b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth, name="simple")
     b.camera(position=(0.0, 2.2, 7.0), look_at=(0.0, 0.8, 0.0), fov=40.0)
-    b.light((3.0, 6.0, 4.0), (40.0, 36.0, 30.0))
+    b.light((3.0, 6.0, 4.0), (120.0, 108.0, 90.0))
     b.material("floor", color=(0.7, 0.7, 0.7))
     b.material("red", color=(0.8, 0.25, 0.2))
     b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")

@@ -22,7 +22,6 @@ from __future__ import annotations
 import os
 from typing import Mapping, Optional
 
-
 import numpy as np
 
 from ._atomic import atomic_path

@@ -237,7 +237,8 @@ def with_parameters(scene, values: Mapping[str, Any]):
             raise ValueError(
                 f"raytrax.with_parameters: {name!r}: expected shape {slot.shape}, got {tuple(v.shape)}"
             )
-        v = v.astype(leaf.dtype)
+        if v.dtype != leaf.dtype:
+            v = v.astype(leaf.dtype)
         key = id(leaf)
         if key not in groups:
             groups[key] = [slot.get, leaf, []]
@@ -246,9 +247,17 @@ def with_parameters(scene, values: Mapping[str, Any]):
     getters, new_leaves = [], []
     for key in order:
         get, leaf, updates = groups[key]
-        new = leaf
-        for index, v in updates:
-            new = v if index is None else new.at[index].set(v)
+        if updates[0][0] is None:  # a whole leaf (camera fields, images, mesh vertices...)
+            new = updates[0][1]
+        else:
+            rows = {i: v for i, v in updates}
+            if sorted(rows) == list(range(leaf.shape[0])):  # every row: one stack, no scatter
+                new = jnp.stack([rows[i] for i in range(leaf.shape[0])])
+            elif len(rows) == 1:
+                new = leaf.at[updates[0][0]].set(updates[0][1])
+            else:
+                idx = np.asarray(sorted(rows), dtype=np.int32)
+                new = leaf.at[idx].set(jnp.stack([rows[int(i)] for i in idx]))
         getters.append(get)
         new_leaves.append(new)
     return eqx.tree_at(lambda s: [g(s) for g in getters], scene, new_leaves)

@@ -457,6 +457,9 @@ def box_hit(center, half, R, o, d, t0):
     tnear, tfar = jnp.max(tn, 0), jnp.min(tf, 0)
     entering = jnp.abs(tnear - t0) <= jnp.abs(tfar - t0)
     t = jnp.where(entering, tnear, tfar)
+    # A zero direction (every slab "parallel") leaves t = +-inf; such a ray never hits
+    # the box, but inf * 0 below would put NaN into the backward pass of the masked lane.
+    t = jnp.where(jnp.isfinite(t), t, 0.0)
     ax = jnp.where(entering, jnp.argmax(tn, 0), jnp.argmin(tf, 0))
     dls = jnp.stack(dl)
     sgn = jnp.sign(jnp.take_along_axis(dls, ax[None], 0)[0])
