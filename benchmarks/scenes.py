@@ -122,3 +122,55 @@ def many_triangles(n, width=160, height=120, spp=1, max_depth=2, seed=0):
     v = c + rng.uniform(-s, s, size=(n, 3, 3))
     b.mesh(v.reshape(-1, 3), np.arange(3 * n).reshape(n, 3), "tri")
     return b.build()
+
+
+def extra_scenes(width=96, height=72, spp=16, max_depth=6):
+    """Small physical scenes that exercise the corners of the model (for
+    ``compare_mitsuba.py --extra``): glass meshes (box, tetrahedron), a mixed
+    diffuse + mirror material, quads and triangles, nested spheres, a camera under
+    the floor, a light inside glass, a mirror quad seen from both sides, and high
+    index glass with total internal reflection."""
+
+    def base(cam=(0.0, 2.2, 7.0), at=(0.0, 0.8, 0.0), lights=(((3.0, 6.0, 4.0), (120.0, 108.0, 90.0)),
+                                                              ((-4.0, 5.0, 2.0), (36.0, 45.0, 66.0)))):
+        b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth)
+        b.camera(position=cam, look_at=at, fov=45.0)
+        for p, i in lights:
+            b.light(p, i)
+        b.material("floor", color=(0.7, 0.7, 0.7))
+        b.material("glass", color=(0.0, 0.0, 0.0), transparency=1.0, ior=1.5)
+        b.material("diamond", color=(0.0, 0.0, 0.0), transparency=1.0, ior=2.4)
+        b.material("mirror", color=(0.0, 0.0, 0.0), reflectivity=(0.95, 0.8, 0.6))
+        b.material("tinted", color=(0.8, 0.3, 0.2), reflectivity=(0.5, 0.6, 0.7))
+        b.material("wall", color=(0.3, 0.6, 0.8))
+        b.plane((0.0, 0.0, 0.0), (0.0, 1.0, 0.0), "floor")
+        return b
+
+    out = {}
+    # Glass solids are lifted 0.01 off the floor: a face coplanar with the floor is a
+    # tie that the two renderers break differently (see benchmarks/README.md).
+    b = base(); b.box((-1, 0.01, 0), (0.2, 1.21, 1.2), "glass", rotation=(0, 35, 0)); out["glass box"] = b
+    b = base(); b.tetrahedron((0.5, 0.01 + 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass"); out["glass tetrahedron"] = b
+    b = base(); b.tetrahedron((0.5, 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass")
+    out["glass tetrahedron ON the floor (coplanar tie)"] = b
+    b = base(); b.sphere((0, 1, 0), 1, "tinted"); out["diffuse + mirror mixture"] = b
+    b = base()
+    b.quad([(-2, 0, -1.5), (2, 0, -1.5), (2, 2.5, -2), (-2, 2.5, -2)], "wall")
+    b.triangle([(1, 0, 1), (2.5, 0, 0.5), (1.8, 1.8, 0.8)], "wall")
+    b.sphere((0, 0.7, 0.5), 0.7, "glass")
+    out["quad + triangle + glass"] = b
+    b = base(); b.sphere((0, 1, 0), 1, "glass"); b.sphere((0, 1, 0), 0.5, "wall"); out["sphere inside glass"] = b
+    b = base(cam=(0, -2, 6), at=(0, 0.5, 0), lights=(((1, 4, 2), (100, 100, 100)), ((0, -3, 3), (20, 20, 20))))
+    b.sphere((0, 1, 0), 1, "wall")
+    out["camera below the floor"] = b
+    b = base(lights=(((0, 1, 0), (50, 50, 50)), ((3, 5, 3), (60, 60, 60)))); b.sphere((0, 1, 0), 0.8, "glass")
+    out["light inside glass"] = b
+    b = base(cam=(0, 1.5, -6), at=(0, 1, 0), lights=(((2, 4, -3), (80, 80, 80)),))
+    b.quad([(-2, 0, 1), (2, 0, 1), (2, 2.5, 0.5), (-2, 2.5, 0.5)], "mirror")
+    b.sphere((0.5, 0.5, -1.5), 0.5, "wall")
+    out["mirror quad, back side"] = b
+    b = base(); b.sphere((0, 1, 0), 1, "diamond"); b.box((-2.5, 0, -2), (-1.5, 1, -1), "wall"); out["ior 2.4 sphere"] = b
+    b = base(); b.box((-0.7, 0, -0.7), (0.7, 1.4, 0.7), "diamond", rotation=(20, 30, 10))
+    b.sphere((1.5, 0.4, -2), 0.4, "wall")
+    out["ior 2.4 tilted box (TIR)"] = b
+    return {k: v.build() for k, v in out.items()}
