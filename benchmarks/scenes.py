@@ -152,7 +152,7 @@ def extra_scenes(width=96, height=72, spp=16, max_depth=6):
     b = base(); b.box((-1, 0.01, 0), (0.2, 1.21, 1.2), "glass", rotation=(0, 35, 0)); out["glass box"] = b
     b = base(); b.tetrahedron((0.5, 0.01 + 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass"); out["glass tetrahedron"] = b
     b = base(); b.tetrahedron((0.5, 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass")
-    out["glass tetrahedron ON the floor (coplanar tie)"] = b
+    out["glass tetrahedron on floor (tie)"] = b
     b = base(); b.sphere((0, 1, 0), 1, "tinted"); out["diffuse + mirror mixture"] = b
     b = base()
     b.quad([(-2, 0, -1.5), (2, 0, -1.5), (2, 2.5, -2), (-2, 2.5, -2)], "wall")
