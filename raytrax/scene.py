@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp

@@ -148,8 +148,7 @@ class Tetrahedra(eqx.Module):
         ]
         c = self.center
         tris = jnp.stack([jnp.stack([p + c, q + c, r + c], 1) for p, q, r in faces], 1)
-        # Fix winding so normals point outward, whatever the sign of the cross product above.
-        tris = tris.reshape(-1, 3, 3)
+        tris = tris.reshape(-1, 3, 3)  # (tetrahedron, face) -> face; outward normals (tests/test_shapes.py)
         return tris, jnp.repeat(self.material, 4)
 
 
