@@ -239,6 +239,48 @@ def test_derivative_at_zero_transparency_is_one_sided():
                 "to the derivative is lost (known limitation, docs/gradients.md)")
 
 
+def test_forward_mode_in_degenerate_cases():
+    """Forward mode (``jax.linearize``) stays finite and equals reverse mode in the nasty
+    cases of tests/test_nan.py (which checks reverse mode in float32): a ray lying in a
+    plane, rays tangent to spheres, total internal reflection, lights inside objects, a
+    camera whose every ray direction is zero. Here, because this file has the float64
+    forward-mode program of scene_g compiled already."""
+    s = scene_g("classic")
+    p = rt.parameters(s)
+    w = jnp.asarray(np.random.default_rng(7).uniform(0.5, 1.5, (H, W, 3)))
+
+    def loss(q):
+        return jnp.mean(w * render64(rt.with_parameters(s, q)))
+
+    o, d, _ = primary_rays(s.camera, jnp.arange(W * H), W, H, 1)
+    o, d = np.asarray(o).T, np.asarray(d).T
+    k1, k2 = 6 * W + 7, 4 * W + 11
+    glass_c = np.asarray(p[f"object[{GLASS}].center"])
+    cases = {
+        "ray in a plane": {f"object[{FLOOR}].point": o[k1], f"object[{FLOOR}].normal":
+                           np.cross(d[k1], [0.3, 1.0, 0.2]) / np.linalg.norm(np.cross(d[k1], [0.3, 1.0, 0.2]))},
+        "tangent ray": {f"object[{MIRROR}].center": o[k2] + 3.0 * d[k2] + 0.7 * np.cross(d[k2], [0, 1, 0])
+                        / np.linalg.norm(np.cross(d[k2], [0, 1, 0])), f"object[{MIRROR}].radius": 0.7},
+        "total internal reflection": {"camera.position": glass_c + [0.0, 0.1, 0.75],
+                                      "camera.look_at": glass_c + [3.0, 0.3, 0.75], "material.glass.ior": 2.4},
+        "lights inside objects": {"light[0].position": glass_c,
+                                  "light[1].position": np.asarray(p[f"object[{TETRA}].center"])},
+        "zero ray directions": {"camera.look_at": np.asarray(p["camera.position"])},
+        "degenerate triangle and box": {f"object[{TRI}].vertices": np.zeros((3, 3)),
+                                        f"object[{BOX}].max": np.asarray(p[f"object[{BOX}].min"])},
+    }
+    rng = np.random.default_rng(3)
+    t = {k: jnp.asarray(rng.normal(size=np.shape(v))) for k, v in p.items()}
+    for label, over in cases.items():
+        q = {**p, **{k: jnp.asarray(v, jnp.float64).reshape(p[k].shape) for k, v in over.items()}}
+        _, f_jvp = jax.linearize(loss, q)
+        jv = float(f_jvp(t))
+        g = jax.grad(loss)(q)
+        terms = [float(jnp.sum(g[k] * t[k])) for k in q]
+        assert np.isfinite(jv) and all(np.isfinite(terms)), label
+        assert abs(jv - sum(terms)) <= 1e-9 * sum(abs(x) for x in terms) + 1e-15, (label, jv, sum(terms))
+
+
 # ---------------------------------------------------------------------------
 # raytrax.testing itself
 # ---------------------------------------------------------------------------
