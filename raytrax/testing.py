@@ -40,8 +40,7 @@ step makes finite differences jump (see docs/gradients.md); pass
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import Any, Callable, Mapping, Optional, Sequence, Union
+from typing import Any, Callable, Mapping, Optional
 
 import jax
 import jax.numpy as jnp
