@@ -211,31 +211,30 @@ def sphere_soa(s: Spheres):
     return dict(cx=c[:, 0], cy=c[:, 1], cz=c[:, 2], r=s.radius)
 
 
-def sphere_t(ray, P, tmin):
+def _sphere_roots(ray, P):
+    """Both roots ``t1 <= t2`` of the ray-sphere quadratic and its discriminant."""
     ox, oy, oz, dx, dy, dz = ray
     ocx, ocy, ocz = ox - P["cx"], oy - P["cy"], oz - P["cz"]
     b = dx * ocx + dy * ocy + dz * ocz
     c = ocx * ocx + ocy * ocy + ocz * ocz - P["r"] * P["r"]
     disc = b * b - c
     sq = jnp.sqrt(jnp.maximum(disc, 0.0))
-    t1 = -b - sq
-    t2 = -b + sq
+    return -b - sq, -b + sq, disc
+
+
+def sphere_t(ray, P, tmin):
+    t1, t2, disc = _sphere_roots(ray, P)
     t = jnp.where(t1 > tmin, t1, jnp.where(t2 > tmin, t2, INF))
     return jnp.where((disc >= 0) & (P["r"] > 0), t, INF)
 
 
 def sphere_crossings(ray, P, tmax):
     """Number of surface crossings (0, 1 or 2) of each ray's open segment ``(0, tmax)``."""
-    ox, oy, oz, dx, dy, dz = ray
-    ocx, ocy, ocz = ox - P["cx"], oy - P["cy"], oz - P["cz"]
-    b = dx * ocx + dy * ocy + dz * ocz
-    c = ocx * ocx + ocy * ocy + ocz * ocz - P["r"] * P["r"]
-    disc = b * b - c
-    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    t1, t2, disc = _sphere_roots(ray, P)
     ok = (disc > 0) & (P["r"] > 0)
-    n1 = ok & (-b - sq > 0) & (-b - sq < tmax)
-    n2 = ok & (-b + sq > 0) & (-b + sq < tmax)
-    return n1.astype(ox.dtype) + n2.astype(ox.dtype)
+    n1 = ok & (t1 > 0) & (t1 < tmax)
+    n2 = ok & (t2 > 0) & (t2 < tmax)
+    return n1.astype(t1.dtype) + n2.astype(t1.dtype)
 
 
 def plane_soa(p: Planes):
