@@ -34,8 +34,11 @@ lights), at each size with spp 4 and depth 5 (``--spp``, ``--depth``):
   printed from medians, and from renders *interleaved* in one process (the
   median of per-pair ratios, robust to the load of a shared machine).
 
-``--scaling``: render time against the number of spheres and of triangles (10,
-100, 1000) and against max_depth (1..8), raytrax and Mitsuba, at 160 x 120.
+``--scaling``: render time against the number of spheres (10, 100, 1000) and of
+triangles (10, 100, 1000, 10000) and against max_depth (1..8), raytrax and
+Mitsuba, at 160 x 120; for the triangle scenes also the crossover of the triangle
+BVH (``raytrax.bvh``): the same render forced to brute force (``bvh=None``) and
+forced to the BVH (``bvh.MIN_TRIANGLES = 0``, topology built at any size).
 """
 
 from __future__ import annotations
@@ -250,7 +253,21 @@ def worker_scaling(cfg):
         fwd, _ = _rt_fns(scene)
         first = _timed(fwd)
         rt_t = statistics.median(_timed(fwd) for _ in range(cfg["repeats"]))
-        r = dict(scene=name, depth=depth, first=first, rt=rt_t)
+        r = dict(scene=name, depth=depth, first=first, rt=rt_t, bvh=scene.bvh is not None)
+        if name.startswith("tris"):  # crossover: the same render by brute force and with the BVH
+            import dataclasses
+
+            import raytrax.bvh as B
+
+            for key, sc in (("brute", dataclasses.replace(scene, bvh=None)),
+                            ("with_bvh", dataclasses.replace(scene, bvh=B.for_scene(scene)))):
+                old, B.MIN_TRIANGLES = B.MIN_TRIANGLES, 0
+                try:
+                    f, _ = _rt_fns(sc)
+                    r[key + "_first"] = _timed(f)
+                    r[key] = statistics.median(_timed(f) for _ in range(cfg["repeats"]))
+                finally:
+                    B.MIN_TRIANGLES = old
         if have_mi:
             m = ms.load(scene)
             ms.render_native(m)
@@ -475,7 +492,7 @@ def main(argv=None):
 
         if args.scaling:
             W, H = (int(v) for v in args.scaling_size.split("x"))
-            items = ([(f"spheres{n}", 2) for n in (10, 100, 1000)] + [(f"tris{n}", 2) for n in (10, 100, 1000)]
+            items = ([(f"spheres{n}", 2) for n in (10, 100, 1000)] + [(f"tris{n}", 2) for n in (10, 100, 1000, 10000)]
                      + [("physical", d) for d in range(1, 9)])
             print(f"=== scaling: {W} x {H}, spp 1 (objects: floor + N diffuse objects, depth 2; depth: physical scene) ===")
             sc = run_worker(dict(task="scaling", W=W, H=H, spp=1, repeats=3, items=items, variant=args.variant),
@@ -488,7 +505,21 @@ def main(argv=None):
                 for r in sc["rows"]:
                     mit = r.get("mi")
                     print(f"  {r['scene']:<14s} {r['depth']:>5d} {fmt_t(r['rt']):>8s} {fmt_t(mit):>8s} "
-                          f"{(r['rt'] / mit if mit else float('nan')):6.2f}  {fmt_t(r['first'])}")
+                          f"{(r['rt'] / mit if mit else float('nan')):6.2f}  {fmt_t(r['first'])}"
+                          + ("  (BVH)" if r.get("bvh") else ""))
+                tri_rows = [r for r in sc["rows"] if "brute" in r]
+                if tri_rows:
+                    import raytrax.bvh
+
+                    print(f"\n  triangle BVH crossover (raytrax.bvh.MIN_TRIANGLES = {raytrax.bvh.MIN_TRIANGLES}: "
+                          f"BVH above it)")
+                    print(f"  {'scene':<14s} {'brute':>8s} {'BVH':>8s} {'speedup':>7s}  first call brute / BVH")
+                    for r in tri_rows:
+                        # The variant the scene uses by default was compiled by the row above.
+                        fb = r["brute_first"] if r["bvh"] else r["first"]
+                        fv = r["first"] if r["bvh"] else r["with_bvh_first"]
+                        print(f"  {r['scene']:<14s} {fmt_t(r['brute']):>8s} {fmt_t(r['with_bvh']):>8s} "
+                              f"{r['brute'] / r['with_bvh']:7.2f}  {fmt_t(fb)} / {fmt_t(fv)}")
     finally:
         shutil.rmtree(cache_root, ignore_errors=True)
     if args.json:

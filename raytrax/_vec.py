@@ -79,3 +79,30 @@ def safe_atan2(y, x):
 def vsel(mask, a, b):
     """Select vectors ``(3, n)`` by a per-ray mask ``(n,)``."""
     return jnp.where(mask[None], a, b)
+
+
+SELECT_GATHER = 8  # tables of at most this many rows are read by selects
+
+
+def take_rows(table, idx):
+    """Rows ``table[idx]`` of a small parameter table ``(N, k)`` (or ``(N,)``) at
+    per-ray indices ``idx (n,)``, component-major: ``(k, n)`` (or ``(n,)``).
+
+    For up to :data:`SELECT_GATHER` rows this is a chain of selects: elementwise,
+    so XLA:CPU vectorises it and its transpose is a masked sum over rays instead
+    of a scatter-add; one row is a broadcast. Larger tables use a gather.
+    """
+    flat = table.ndim == 1
+    tab = table[:, None] if flat else table
+    N, k = tab.shape
+    if N > SELECT_GATHER:
+        out = tab.at[idx].get(mode="promise_in_bounds").T
+    else:
+        cols = []
+        for j in range(k):
+            v = jnp.broadcast_to(tab[0, j], idx.shape)
+            for m in range(1, N):
+                v = jnp.where(idx == m, tab[m, j], v)
+            cols.append(v)
+        out = jnp.stack(cols)
+    return out[0] if flat else out

@@ -4,6 +4,9 @@ See :mod:`raytrax.shapes` for the two-pass design: a stop-gradient search over
 blocks of primitives (struct-of-arrays, ``(rays, block)`` tiles, a
 ``lax.scan`` over blocks when a kind has more than :data:`BLOCK` primitives),
 then a differentiable recomputation against the one primitive each ray hit.
+The merged triangle list of a scene with a BVH (``scene.bvh``, more than
+``bvh.MIN_TRIANGLES`` triangles) is searched through it instead (:mod:`raytrax.bvh`),
+with the same results.
 """
 
 from __future__ import annotations
@@ -13,7 +16,10 @@ from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax.ad_checkpoint import checkpoint_name
 
+from . import bvh as B
+from . import _vec as V
 from . import shapes as S
 
 BLOCK = 32
@@ -27,6 +33,7 @@ class Kind(NamedTuple):
     tfun: Callable
     hit: Callable  # (idx (n,), o, d, t0) -> (t, n, uv, rate)
     crossings: Callable | None = None  # (ray, P, tmax) -> (n, B) surface crossings; None: one per hit
+    accel: B.Accel | None = None  # triangle BVH search arrays (see raytrax.bvh); None: brute force
 
 
 class Hit(NamedTuple):
@@ -83,7 +90,12 @@ def prepare(scene) -> list[Kind]:
             v = T[i]
             return S.tri_hit(v[:, 0].T, v[:, 1].T, v[:, 2].T, o, d, t0)
 
-        kinds.append(Kind("triangle", _ng(S.tri_soa(T[:, 0], T[:, 1], T[:, 2])), M, S.tri_t, thit))
+        soa = _ng(S.tri_soa(T[:, 0], T[:, 1], T[:, 2]))
+        bvh = getattr(scene, "bvh", None)
+        acc = None
+        if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
+            acc = B.prepare(bvh, soa)
+        kinds.append(Kind("triangle", soa, M, S.tri_t, thit, None, acc))
     bx = scene.boxes
     if bx.lo.shape[0]:
         Rb = S.euler_matrix(bx.rotation).reshape(-1, 9)  # per box, not per ray
@@ -91,10 +103,8 @@ def prepare(scene) -> list[Kind]:
         hb = 0.5 * jnp.abs(bx.hi - bx.lo)
 
         def bhit(i, o, d, t0):
-            R = Rb[i].T.reshape(3, 3, -1)
-            c = cb[i].T
-            h = hb[i].T
-            return S.box_hit(c, [h[0], h[1], h[2]], R, o, d, t0)
+            P = _gather(jnp.concatenate([Rb, cb, hb], 1), i)
+            return S.box_hit(P[9:12], P[12:15], [P[0:3], P[3:6], P[6:9]], o, d, t0)
 
         kinds.append(Kind("box", _ng(S.box_soa(bx)), bx.material, S.box_t, bhit, S.box_crossings))
     return kinds
@@ -113,6 +123,8 @@ def _blocks(soa, extra=None):
 
 def _closest_kind(k: Kind, ray, tmin):
     """Per ray: nearest distance (inf on a miss) and primitive index of one kind."""
+    if k.accel is not None:
+        return B.closest(k.accel, ray, tmin)
     ray2 = tuple(r[:, None] for r in ray)
     N = k.material.shape[0]
     if N <= BLOCK:
@@ -135,6 +147,31 @@ def _closest_kind(k: Kind, ray, tmin):
     return tb, ib
 
 
+def _gather(table, i):
+    """Rows ``table[i]`` of ``table (N, k)`` at ``i (n,)`` as a list of ``k`` arrays ``(n,)``.
+
+    For a few primitives this is a chain of selects (elementwise; its transpose is a
+    masked sum instead of a scatter-add), for one a broadcast; else a gather per
+    column (struct of arrays)."""
+    N, k = table.shape
+    if N == 1:
+        return [jnp.broadcast_to(table[0, j], i.shape) for j in range(k)]
+    if N <= V.SELECT_GATHER:
+        out = []
+        for j in range(k):
+            v = jnp.broadcast_to(table[0, j], i.shape)
+            for m in range(1, N):
+                v = jnp.where(i == m, table[m, j], v)
+            out.append(v)
+        return out
+    return [table[:, j].at[i].get(mode="promise_in_bounds") for j in range(k)]
+
+
+def _no_hit(idx, o, d, t0):
+    z = jnp.zeros_like(t0)
+    return z, jnp.zeros_like(o), jnp.zeros((2,) + z.shape, z.dtype), jnp.zeros((2,) + z.shape, z.dtype)
+
+
 def closest_hit(kinds: list[Kind], o, d) -> Hit:
     """Nearest hit of rays ``o, d (3, n)`` (``d`` unit) over all kinds; differentiable
     in the hit quantities (see module docstring)."""
@@ -148,22 +185,38 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
     ts = jnp.stack(ts)
     which = jnp.argmin(ts, 0)
     t0 = jnp.min(ts, 0)
-    valid = t0 < INF
-    t = jnp.zeros((n,), o.dtype)
-    nrm = jnp.zeros_like(o)
-    uv = jnp.zeros((2, n), o.dtype)
-    rate = jnp.zeros((2, n), o.dtype)
-    mat = jnp.zeros((n,), jnp.int32)
-    for j, k in enumerate(kinds):
-        sel = valid & (which == j)
-        idx = jnp.where(sel, ids[j], 0)
-        tk, nk, uvk, rk = k.hit(idx, o, d, jnp.where(sel, t0, 0.0))
-        t = jnp.where(sel, tk, t)
-        nrm = jnp.where(sel[None], nk, nrm)
-        uv = jnp.where(sel[None], uvk, uv)
-        rate = jnp.where(sel[None], rk, rate)
-        mat = jnp.where(sel, k.material[idx], mat)
-    return Hit(valid, t, nrm, uv, rate, mat)
+    # Reverse mode (integrator's shading checkpoint) keeps these instead of searching again.
+    which, t0, ids = checkpoint_name((which, t0, ids), "raytrax_search")
+
+    def combine(which, t0, ids, o, d):
+        valid = t0 < INF
+        t = jnp.zeros((n,), o.dtype)
+        nrm = jnp.zeros_like(o)
+        uv = jnp.zeros((2, n), o.dtype)
+        rate = jnp.zeros((2, n), o.dtype)
+        mat = jnp.zeros((n,), jnp.int32)
+        for j, k in enumerate(kinds):
+            sel = valid & (which == j)
+            idx = jnp.where(sel, ids[j], 0)
+            # Under a cond: skipped when no ray hit this kind, and its inputs and outputs
+            # are materialised (XLA:CPU would otherwise fuse the search into every
+            # consumer of the recomputation and repeat it per output component).
+            tk, nk, uvk, rk = jax.lax.cond(jnp.any(sel), k.hit, _no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
+            t = jnp.where(sel, tk, t)
+            nrm = jnp.where(sel[None], nk, nrm)
+            uv = jnp.where(sel[None], uvk, uv)
+            rate = jnp.where(sel[None], rk, rate)
+            mat = jnp.where(sel, V.take_rows(k.material, idx), mat)
+        return Hit(valid, t, nrm, uv, rate, mat)
+
+    def no_ray(which, t0, ids, o, d):
+        z = jnp.zeros((n,), o.dtype)
+        return Hit(jnp.zeros((n,), bool), z, jnp.zeros_like(o), jnp.zeros((2, n), o.dtype),
+                   jnp.zeros((2, n), o.dtype), jnp.zeros((n,), jnp.int32))
+
+    # Also under a cond, so that every field of the hit (validity included) is read
+    # from materialised search results rather than re-searched inside its consumers.
+    return jax.lax.cond(jnp.any(t0 < INF), combine, no_ray, which, t0, ids, o, d)
 
 
 def _crossings(k: Kind, ray2, P, tmax):
@@ -182,6 +235,9 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
     ray2 = tuple(r[:, None] for r in ray)
     counts = jnp.zeros((n, n_materials), o.dtype)
     for k in kinds:
+        if k.accel is not None:
+            counts = counts + B.crossings(k.accel, k.material, ray, tmax, n_materials)
+            continue
         onehot = jax.nn.one_hot(k.material, n_materials, dtype=o.dtype)
         N = k.material.shape[0]
         if N <= BLOCK:

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from . import bvh as _bvh
 from . import textures as tx
 from .camera import Camera
 from .lights import PointLights
@@ -79,7 +80,9 @@ class Scene(eqx.Module):
 
     ``object_index`` maps the i-th object of the scene description to
     ``(kind, index within kind)``; ``material_names`` names the rows of the
-    material table; ``light`` rows follow the description's order.
+    material table; ``light`` rows follow the description's order. ``bvh`` is
+    the topology of the triangle acceleration structure (:mod:`raytrax.bvh`),
+    built by :class:`SceneBuilder` for scenes with many triangles.
     """
 
     camera: Camera
@@ -97,6 +100,7 @@ class Scene(eqx.Module):
     object_index: tuple = eqx.field(static=True, default=())
     material_names: tuple = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="scene")
+    bvh: _bvh.TriangleBVH | None = None  # leaf order of the merged triangle list (raytrax.bvh); None: brute force
 
     @property
     def dtype(self):
@@ -386,7 +390,7 @@ class SceneBuilder:
             lp = jnp.zeros((0, 3), dt)
             li = jnp.zeros((0, 3), dt)
         c = self._camera
-        return Scene(
+        scene = Scene(
             camera=Camera(F(c["position"]), F(c["look_at"]), F(c["up"]), F(c["fov"])),
             lights=PointLights(lp, li),
             materials=materials,
@@ -398,3 +402,9 @@ class SceneBuilder:
             material_names=tuple(names),
             name=self.name,
         )
+        # Triangle acceleration structure (raytrax.bvh) over the merged triangle list
+        # (triangles, tetrahedron faces, mesh faces), above the brute-force threshold.
+        n_tri = triangles.vertices.shape[0] + 4 * tetra.center.shape[0] + sum(m.faces.shape[0] for m in meshes)
+        if n_tri > _bvh.MIN_TRIANGLES:
+            scene = dataclasses.replace(scene, bvh=_bvh.for_scene(scene))
+        return scene

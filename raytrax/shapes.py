@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
@@ -437,45 +438,58 @@ def tri_hit(v0, v1, v2, o, d, t0):
     return t, n, jnp.stack([u, v]), rate
 
 
+def _first_best(vals, better):
+    """Index of the first ``better``-most of three arrays (``argmax``/``argmin``'s tie
+    rule) and that value, with elementwise selects only."""
+    ax = jnp.zeros(vals[0].shape, jnp.int32)
+    best = vals[0]
+    for i in (1, 2):
+        b = better(vals[i], best)
+        ax = jnp.where(b, i, ax)
+        best = jnp.where(b, vals[i], best)
+    return ax, best
+
+
+def _pick3(vals, ax):
+    """``vals[ax]`` per ray from three arrays, by selects."""
+    return jnp.where(ax == 0, vals[0], jnp.where(ax == 1, vals[1], vals[2]))
+
+
 def box_hit(center, half, R, o, d, t0):
-    """``R`` is (3, 3, n): R[i, j] the rotation entry (row i, column j) per ray."""
-    q = o - center
-    ol = [V.dot(R[:, i], q) for i in range(3)]
-    dl = [V.dot(R[:, i], d) for i in range(3)]
+    """``R`` is (3, 3, n) (or nested 3 x 3 sequences of (n,) arrays): ``R[i][j]`` the
+    rotation entry (row i, column j) per ray. Elementwise throughout (no stacking,
+    arg-reductions or gathers), which keeps XLA's fusions vectorisable."""
+    q = [o[j] - center[j] for j in range(3)]
+    ol = [R[0][i] * q[0] + R[1][i] * q[1] + R[2][i] * q[2] for i in range(3)]
+    dl = [R[0][i] * d[0] + R[1][i] * d[1] + R[2][i] * d[2] for i in range(3)]
     tn, tf = [], []
     for i in range(3):
         t1 = V.safe_div(-half[i] - ol[i], dl[i])
         t2 = V.safe_div(half[i] - ol[i], dl[i])
-        tn.append(jnp.minimum(t1, t2))
-        tf.append(jnp.maximum(t1, t2))
-    # Degenerate slabs (ray parallel to a face) never decide the hit: push them out.
-    par = [jnp.abs(dl[i]) < 1e-30 for i in range(3)]
-    tn = jnp.stack([jnp.where(par[i], -INF, tn[i]) for i in range(3)])
-    tf = jnp.stack([jnp.where(par[i], INF, tf[i]) for i in range(3)])
-    tnear, tfar = jnp.max(tn, 0), jnp.min(tf, 0)
+        # Degenerate slabs (ray parallel to a face) never decide the hit: push them out.
+        par = jnp.abs(dl[i]) < 1e-30
+        tn.append(jnp.where(par, -INF, jnp.minimum(t1, t2)))
+        tf.append(jnp.where(par, INF, jnp.maximum(t1, t2)))
+    ax_n, tnear = _first_best(tn, lambda a, b: a > b)
+    ax_f, tfar = _first_best(tf, lambda a, b: a < b)
     entering = jnp.abs(tnear - t0) <= jnp.abs(tfar - t0)
     t = jnp.where(entering, tnear, tfar)
     # A zero direction (every slab "parallel") leaves t = +-inf; such a ray never hits
     # the box, but inf * 0 below would put NaN into the backward pass of the masked lane.
     t = jnp.where(jnp.isfinite(t), t, 0.0)
-    ax = jnp.where(entering, jnp.argmax(tn, 0), jnp.argmin(tf, 0))
-    dls = jnp.stack(dl)
-    sgn = jnp.sign(jnp.take_along_axis(dls, ax[None], 0)[0])
+    ax = jnp.where(entering, ax_n, ax_f)
+    # Materialise the hit (t, face) once: otherwise XLA fuses the whole slab test
+    # into each component of the stacked outputs below and repeats it per component.
+    t, ax, entering = jax.lax.optimization_barrier((t, ax, entering))
+    sgn = jnp.sign(_pick3(dl, ax))
     sgn = jnp.where(sgn == 0, 1.0, sgn)
     outward = jnp.where(entering, -sgn, sgn)
-    onehot = (jnp.arange(3)[:, None] == ax[None, :]).astype(o.dtype)
-    nl = onehot * outward[None]
-    n = jnp.stack([V.dot(R[i], nl) for i in range(3)])
+    n = jnp.stack([_pick3(R[j], ax) * outward for j in range(3)])
     # In-face coordinates: the two axes other than `ax`.
-    pl = jnp.stack(ol) + t[None] * dls
-    ua = (ax + 1) % 3
-    va = (ax + 2) % 3
-    h = jnp.stack(half)
-
-    def pick(arr, idx):
-        return jnp.take_along_axis(arr, idx[None], 0)[0]
-
-    hu, hv = pick(h, ua), pick(h, va)
-    uv = jnp.stack([V.safe_div(pick(pl, ua) + hu, 2 * hu), V.safe_div(pick(pl, va) + hv, 2 * hv)])
+    pl = [ol[i] + t * dl[i] for i in range(3)]
+    ua = jnp.where(ax == 2, 0, ax + 1)
+    va = jnp.where(ax == 0, 2, ax - 1)
+    hu, hv = _pick3(half, ua), _pick3(half, va)
+    uv = jnp.stack([V.safe_div(_pick3(pl, ua) + hu, 2 * hu), V.safe_div(_pick3(pl, va) + hv, 2 * hv)])
     rate = jnp.stack([V.safe_div(1.0, 2 * hu), V.safe_div(1.0, 2 * hv)])
     return t, n, uv, rate
