@@ -1,15 +1,79 @@
-"""raytrax: a differentiable Whitted-style raytracer in JAX."""
+"""raytrax: a differentiable Whitted-style raytracer in JAX.
 
-from .camera import Camera
-from .integrator import RenderOptions, render
-from .lights import PointLights
-from .materials import Materials, fresnel_dielectric, refract
-from .params import parameters, with_parameters
-from .fit import FitResult, fit
-from .scene import Environment, Scene, SceneBuilder, Settings
-from .shapes import Boxes, Mesh, Planes, Quads, Spheres, Tetrahedra, Triangles
-from .textures import Checker, ImageTexture, Stripes, builtin_image
-from .scenefile import load_scene, save_scene, SceneError
-from .imageio import save_image, load_image
+The public names below are imported lazily, on first use (PEP 562): ``import
+raytrax`` costs almost nothing, and ``rt.render`` imports jax and equinox, but
+not the fitting stack (optimistix, lineax) until ``rt.fit`` is used, nor
+OpenImageIO until an image is read or written. ``from raytrax import fit`` and
+``rt.FitResult`` work as before.
+"""
+
+import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
+
+# public name -> submodule that defines it
+_LAZY = {
+    "Camera": "camera",
+    "RenderOptions": "integrator",
+    "render": "integrator",
+    "PointLights": "lights",
+    "Materials": "materials",
+    "fresnel_dielectric": "materials",
+    "refract": "materials",
+    "parameters": "params",
+    "with_parameters": "params",
+    "FitResult": "fit",
+    "fit": "fit",
+    "Environment": "scene",
+    "Scene": "scene",
+    "SceneBuilder": "scene",
+    "Settings": "scene",
+    "Boxes": "shapes",
+    "Mesh": "shapes",
+    "Planes": "shapes",
+    "Quads": "shapes",
+    "Spheres": "shapes",
+    "Tetrahedra": "shapes",
+    "Triangles": "shapes",
+    "Checker": "textures",
+    "ImageTexture": "textures",
+    "Stripes": "textures",
+    "builtin_image": "textures",
+    "load_scene": "scenefile",
+    "save_scene": "scenefile",
+    "SceneError": "scenefile",
+    "save_image": "imageio",
+    "load_image": "imageio",
+}
+
+__all__ = sorted(_LAZY) + ["__version__"]
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{mod}", __name__), name)
+    globals()[name] = value  # later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
+
+class _Package(types.ModuleType):
+    """Keeps ``raytrax.fit`` the function: importing the submodule ``raytrax.fit``
+    (``from raytrax.fit import FitResult``) makes the import system set the
+    package attribute ``fit`` to the module, which used to be overwritten by the
+    eager ``from .fit import fit``."""
+
+    def __setattr__(self, name, value):
+        if name == "fit" and isinstance(value, types.ModuleType) and hasattr(value, "fit"):
+            value = value.fit
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -7,6 +7,11 @@
     summarises a scene: render settings, camera, lights, materials, objects, and
     an estimate of the work a render does.
 
+Renders use jax's persistent compilation cache (``$JAX_COMPILATION_CACHE_DIR``,
+default ``~/.cache/raytrax/jax``) and keep the compiled render itself there too,
+so a second run of the same scene at the same settings skips tracing and
+compiling (``RAYTRAX_EXECUTABLE_CACHE=0`` turns the latter off).
+
 Exit status: 0 on success, 2 on a user error (bad scene file, bad option, an
 output that cannot be written), with one line on stderr and no traceback;
 130 when interrupted (Ctrl-C). A failed or interrupted run leaves no output file
@@ -181,19 +186,24 @@ def _cmd_render(args) -> int:
     _say(f"loaded {desc.source} in {time.perf_counter() - t_start:.1f} s: {st.width} x {st.height}, "
          f"spp {st.spp}, depth {st.max_depth}, {st.shading} shading", q)
 
-    import equinox as eqx
     import jax
     import numpy as np
 
     from .imageio import save_image
-    from .integrator import render
 
-    fn = eqx.filter_jit(lambda s: render(s))
     with _Phase("compiling", q) as ph_c:
-        compiled = fn.lower(scene).compile()
+        compiled, leaves, cached = _compiled_render(scene)
     with _Phase("rendering", q) as ph_r:
-        img = compiled(scene)
-        img = np.asarray(jax.block_until_ready(img))
+        try:
+            img = np.asarray(jax.block_until_ready(compiled(leaves)))
+        except jax.errors.JaxRuntimeError:
+            if cached is None:
+                raise
+            # A cached executable that does not run (e.g. XLA lost part of it when
+            # serializing): forget it and compile.
+            _forget(cached)
+            compiled, leaves, _ = _compiled_render(scene, use_cache=False)
+            img = np.asarray(jax.block_until_ready(compiled(leaves)))
     bits = args.bits
     meta = dict(scene=desc.name, source=os.path.abspath(path), width=st.width, height=st.height, spp=st.spp,
                 max_depth=st.max_depth, shading=st.shading, render_time_s=round(ph_r.elapsed, 4),
@@ -205,6 +215,193 @@ def _cmd_render(args) -> int:
     _say(f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
          f"(compile {ph_c.elapsed:.1f} s, render {ph_r.elapsed:.1f} s)", q)
     return 0
+
+
+# -----------------------------------------------------------------------------
+# Compiled renders, cached across processes
+# -----------------------------------------------------------------------------
+#
+# jax's persistent compilation cache is looked up by a hash of the lowered
+# program, so a warm run still traces and lowers the whole integrator (seconds)
+# before it finds the executable. The CLI also keeps the serialized executable
+# itself (``jax.experimental.serialize_executable``) under a key computed without
+# tracing: the raytrax sources, the jax version, backend, CPU and configuration,
+# and the scene's structure (tree, static fields, leaf shapes and dtypes). A hit
+# skips tracing, lowering and compiling (about 2 s of CPU for the seed scene,
+# jax 0.10). Anything unexpected (no entry, an unreadable or incompatible one, a
+# program XLA cannot serialize, a loaded program that fails to run) falls back to
+# ``jit(...).lower(...).compile()``, which still uses jax's own cache. Entries
+# live in ``<jax_compilation_cache_dir>/raytrax-executables/`` (the newest 32);
+# ``RAYTRAX_EXECUTABLE_CACHE=0`` turns this off.
+
+_EXEC_DIR = "raytrax-executables"
+_EXEC_KEEP = 32  # newest entries kept
+_EXEC_FORMAT = 1
+
+
+def _source_digest() -> bytes:
+    import hashlib
+
+    h = hashlib.sha256()
+    root = os.path.dirname(os.path.abspath(__file__))
+    for name in sorted(os.listdir(root)):
+        if name.endswith(".py"):
+            h.update(name.encode())
+            with open(os.path.join(root, name), "rb") as f:
+                h.update(f.read())
+    return h.digest()
+
+
+def _host_digest() -> str:
+    """CPU model and instruction-set flags (an executable is compiled for them)."""
+    import platform
+
+    text = platform.machine() + platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith(("flags", "model name", "Features", "CPU part")):
+                    text += line
+                elif not line.strip():
+                    break  # the first processor is enough
+    except OSError:
+        pass
+    return text
+
+
+def _executable_key(scene) -> Optional[str]:
+    """Key of the compiled render of ``scene``, or None when the scene has a static
+    part without a stable text form."""
+    import hashlib
+
+    import jax
+    import jaxlib
+    import numpy as np
+
+    leaves, treedef = jax.tree_util.tree_flatten(scene)
+    parts = [str(treedef)]
+    for x in leaves:
+        if isinstance(x, (jax.Array, np.ndarray)):
+            parts.append(f"{x.shape}{x.dtype}{getattr(x, 'weak_type', False)}")
+        else:
+            parts.append(repr(x))
+    if any(" at 0x" in p or "..." in p for p in parts):  # an address, or a summarised (large) array
+        return None
+    dev = jax.devices()[0]
+    cfg = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
+    parts += [jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, dev.client.platform_version,
+              str(jax.device_count()), os.environ.get("XLA_FLAGS", ""), repr(cfg), _host_digest()]
+    h = hashlib.sha256(_source_digest())
+    h.update("\0".join(parts).encode())
+    return h.hexdigest()[:40]
+
+
+def _executable_path(key) -> Optional[str]:
+    import jax
+
+    if os.environ.get("RAYTRAX_EXECUTABLE_CACHE", "1") == "0" or key is None:
+        return None
+    root = jax.config.jax_compilation_cache_dir
+    return os.path.join(root, _EXEC_DIR, f"render-{key}.bin") if root else None
+
+
+def _load_executable(path, leaves):
+    """The compiled render stored at ``path``, or None."""
+    import pickle
+
+    import jax
+    from jax.experimental.serialize_executable import deserialize_and_load
+
+    try:
+        with open(path, "rb") as f:
+            fmt, payload, in_tree, out_tree = pickle.load(f)
+        if fmt != _EXEC_FORMAT:
+            return None
+        compiled = deserialize_and_load(payload, in_tree, out_tree)
+        expected = [(a.shape, a.dtype) for a in jax.tree_util.tree_leaves(compiled.args_info)]
+        if expected != [(x.shape, x.dtype) for x in leaves]:
+            return None
+    except Exception:  # noqa: BLE001 - missing, truncated or incompatible: compile instead
+        return None
+    try:
+        os.utime(path)  # recently used
+    except OSError:
+        pass
+    return compiled
+
+
+def _forget(path):
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _store_executable(path, compiled):
+    import pickle
+    import tempfile
+
+    from jax.experimental.serialize_executable import serialize
+
+    try:
+        payload, in_tree, out_tree = serialize(compiled)
+        folder = os.path.dirname(path)
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".bin")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                pickle.dump((_EXEC_FORMAT, payload, in_tree, out_tree), f, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+        entries = sorted((os.path.getmtime(p), p) for p in
+                         (os.path.join(folder, n) for n in os.listdir(folder) if n.startswith("render-")))
+        for _, p in entries[:-_EXEC_KEEP]:
+            os.unlink(p)
+    except Exception:  # noqa: BLE001 - e.g. XLA cannot serialize this program; nothing is cached
+        pass
+
+
+def _compiled_render(scene, use_cache=True):
+    """``(compiled, leaves, path)``: ``compiled(leaves)`` renders ``scene`` (its
+    array leaves ``leaves``); ``path`` is the executable cache entry it was loaded
+    from, or None when it was compiled here."""
+    import equinox as eqx
+    import jax
+
+    dynamic, static = eqx.partition(scene, eqx.is_array)
+    leaves, treedef = jax.tree_util.tree_flatten(dynamic)
+    path = _executable_path(_executable_key(scene)) if use_cache else None
+    if path is not None and os.path.exists(path):
+        compiled = _load_executable(path, leaves)
+        if compiled is not None:
+            return compiled, leaves, path
+        _forget(path)  # unreadable or for other arguments
+
+    from .integrator import render
+
+    def fn(leaves):
+        return render(eqx.combine(jax.tree_util.tree_unflatten(treedef, leaves), static))
+
+    from jax import monitoring
+
+    hits = []
+
+    def on_event(event, **kw):
+        if event == "/jax/compilation_cache/cache_hits":
+            hits.append(event)
+
+    monitoring.register_event_listener(on_event)
+    try:
+        compiled = jax.jit(fn).lower(leaves).compile()
+    finally:
+        monitoring.unregister_event_listener(on_event)
+    # Only a program compiled here is stored: one that jax's cache deserialized
+    # was seen to serialize again without all its functions (XLA:CPU, jax 0.10).
+    if path is not None and not hits:
+        _store_executable(path, compiled)
+    return compiled, leaves, None
 
 
 def _fmt_vec(v):
@@ -320,7 +517,7 @@ def _cmd_info(args) -> int:
     listed = ", ".join(f"{counts[k]} {k}{'es' if k == 'box' and counts[k] != 1 else ('s' if counts[k] != 1 else '')}"
                        for k in ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh") if counts[k])
     e = cost_estimate(d)
-    out += [f"estimated cost:",
+    out += ["estimated cost:",
             f"  primitives  {listed or 'none'}; {e['primitives']} tested per ray "
             f"({counts['triangles_total']} triangles)",
             f"  rays        {_si(e['camera_rays'])} camera ({r.width} x {r.height} x {r.spp} spp)"
@@ -366,10 +563,16 @@ def main(argv: Optional[list] = None) -> int:
             signal.signal(signal.SIGINT, previous)
 
 
-def _main(argv):
+def _user_errors():
+    """Exceptions reported in one line (imported when one is raised: ``--help`` and
+    argument errors need no jax)."""
     from .imageio import ImageError
     from .scenefile import SceneError
 
+    return (UsageError, SceneError, ImageError, OSError)
+
+
+def _main(argv):
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)
@@ -377,14 +580,16 @@ def _main(argv):
             _enable_compilation_cache()
             return _cmd_render(args)
         return _cmd_info(args)
-    except (UsageError, SceneError, ImageError, OSError) as e:
-        msg = " ".join(str(e).split("\n"))
-        print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
-        return 2
+    except SystemExit:  # --help
+        raise
     except KeyboardInterrupt:
         start = "\n" if _Phase.open_line else ""
         print(f"{start}{PROG}: interrupted; no output written", file=sys.stderr, flush=True)
         return 130
+    except _user_errors() as e:
+        msg = " ".join(str(e).split("\n"))
+        print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
+        return 2
 
 
 if __name__ == "__main__":

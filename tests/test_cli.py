@@ -58,8 +58,12 @@ def one_line(stderr: str) -> str:
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory, env):
     d = tmp_path_factory.mktemp("cli")
+    _SOURCES["rendered"] = cli._source_digest()
     r = run(["render", TINY, "-o", "tiny.png", *SMALL], d, env)
     return d, r
+
+
+_SOURCES = {}  # digest of the raytrax sources (the executable cache key depends on them)
 
 
 def test_render_png(rendered):
@@ -90,6 +94,25 @@ def test_render_exr_with_metadata_and_quiet(rendered, env):
     assert meta["scene"] == "tiny" and meta["spp"] == 1 and meta["max_depth"] == 1
     assert meta["width"] == 16 and meta["height"] == 12 and meta["render_time_s"] >= 0
     os.remove(d / "tiny.exr")
+
+
+def test_second_render_uses_the_executable_cache(rendered, env):
+    # The first render compiled (its cache dir started empty) and kept the compiled
+    # program; an entry that cannot be read is forgotten and the render compiles.
+    d, _ = rendered
+    folder = os.path.join(env["JAX_COMPILATION_CACHE_DIR"], cli._EXEC_DIR)
+    entries = [f for f in os.listdir(folder) if f.startswith("render-")] if os.path.isdir(folder) else []
+    if not entries:  # XLA sometimes cannot serialise a program (seen once in six runs); nothing to test
+        pytest.skip("this compiled program could not be serialised; the CLI kept no executable")
+    for f in entries:
+        with open(os.path.join(folder, f), "wb") as fh:
+            fh.write(b"not an executable")
+    r = run(["render", TINY, "-o", "again.png", "-q", *SMALL], d, env)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert np.array_equal(load_image(d / "again.png"), load_image(d / "tiny.png"))
+    if cli._source_digest() == _SOURCES["rendered"]:  # (else: sources edited meanwhile, another key)
+        assert not any(f in os.listdir(folder) for f in entries)
+    os.remove(d / "again.png")
 
 
 def test_user_error_exit_2_one_line_no_files(tmp_path, env):
@@ -211,3 +234,45 @@ def test_info_counts_meshes(capsys, tmp_path):
     assert "'m.obj', 4 vertices, 3 triangles" in out and "intensity 100 W/sr" in out
     assert "100 camera (10 x 10 x 1 spp) (no specular bounces) + up to 100 shadow (1 light)" in out
     assert "up to 600 ray-primitive tests" in out  # (100 camera + 100 shadow rays) x 3 triangles
+
+
+def test_executable_key_follows_the_scene_structure():
+    from raytrax.scenefile import load_description
+
+    desc = load_description(TINY)
+    key = cli._executable_key(desc.build())
+    assert key is not None and key == cli._executable_key(desc.build())
+    assert cli._executable_key(desc.with_render(width=17).build()) != key  # a static setting
+    assert cli._executable_key(desc.with_render(spp=4).build()) != key
+
+
+def test_unreadable_executable_is_ignored(tmp_path):
+    bad = tmp_path / "render-x.bin"
+    bad.write_bytes(b"\x80\x05garbage")
+    assert cli._load_executable(str(bad), []) is None
+    assert cli._load_executable(str(tmp_path / "missing.bin"), []) is None
+
+
+def test_cached_executable_that_fails_to_run_is_recompiled(tmp_path, monkeypatch, capsys):
+    import jax
+
+    entry = tmp_path / "render-entry.bin"
+    entry.write_bytes(b"stale")
+    calls = []
+
+    def bad(leaves):
+        raise jax.errors.JaxRuntimeError("NOT_FOUND: Function broadcast_pad_fusion not found")
+
+    def good(leaves):
+        return np.full((12, 16, 3), 0.5, np.float32)
+
+    def fake(scene, use_cache=True):
+        calls.append(use_cache)
+        return (bad, [], str(entry)) if use_cache else (good, [], None)
+
+    monkeypatch.setattr(cli, "_enable_compilation_cache", lambda: None)
+    monkeypatch.setattr(cli, "_compiled_render", fake)
+    code, out, err = main_err(capsys, ["render", TINY, "-o", str(tmp_path / "out.png"), "-q", *SMALL])
+    assert code == 0 and err == "", err
+    assert calls == [True, False] and not entry.exists()
+    assert load_image(tmp_path / "out.png").shape == (12, 16, 3)
