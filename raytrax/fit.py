@@ -69,7 +69,7 @@ DEFAULT_BOUNDS = {
 }
 
 _RENDER_KEYS = ("width", "height", "spp", "max_depth", "filter_textures", "branches", "tile_rays", "devices",
-                "key")
+                "key", "edge_gradients", "edge_budget")
 _TAGS = frozenset()
 _JACFWD_MAX = 32  # fitted numbers up to which the start check resolves single components
 

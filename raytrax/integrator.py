@@ -19,23 +19,30 @@ Inside a tile, each camera sample carries up to ``branches`` specular branches:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Optional
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.ad_checkpoint import checkpoint_name
 
 from . import _vec as V
 from . import textures as tx
 from .camera import primary_rays
 from .intersect import closest_hit, occluder_counts, prepare
 from .materials import fresnel_dielectric, refract
-from .scene import Scene, Settings
+from .lights import PointLights
+from .scene import Environment, Scene, Settings
 
 RAYS_PER_TILE = 16384
 SUBTILE = 4096
 EPS_REL = 1e-4
+# Reverse mode keeps only the inputs of each sub-tile's shading (and the values
+# named here) and recomputes the rest: storing every intermediate of every
+# bounce costs more in memory traffic than recomputing it.
+_SHADE_POLICY = jax.checkpoint_policies.save_only_these_names("raytrax_search", "raytrax_shadow")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,28 +57,56 @@ class RenderOptions:
 
 
 def _gather_rows(table, idx):
-    """``table (M, k)`` rows at ``idx (n,)`` as ``(k, n)``."""
-    return table[idx].T
+    """``table (M, k)`` rows at ``idx (n,)`` as ``(k, n)`` (``(M,)`` tables: ``(n,)``)."""
+    return V.take_rows(table, idx)
 
 
-def _surface_color(mats, mat, uv, rate, width, filtered):
-    base = _gather_rows(mats.color, mat)
+def _material_rows(mats, mat, names):
+    """The float material fields ``names`` at per-ray material ids ``mat (n,)``:
+    ``{name: (n,) or (k, n)}``. One matrix product of the stacked ``(K, M)``
+    table with a one-hot ``(M, n)``: a single materialised read (XLA:CPU would
+    otherwise repeat per-field select chains inside every consumer), whose
+    transpose is again one product instead of a scatter-add. Exact: one non-zero
+    term per sum."""
+    cols = [getattr(mats, nm) for nm in names]
+    tab = jnp.concatenate([c[:, None] if c.ndim == 1 else c for c in cols], 1)  # (M, K)
+    M = tab.shape[0]
+    if M == 1:
+        rows = jnp.broadcast_to(tab[0][:, None], (tab.shape[1],) + mat.shape)
+    else:
+        onehot = (mat[None, :] == jnp.arange(M, dtype=mat.dtype)[:, None]).astype(tab.dtype)  # (M, n)
+        rows = jnp.dot(tab.T, onehot, precision=jax.lax.Precision.HIGHEST)  # (K, n)
+    out, j = {}, 0
+    for nm, c in zip(names, cols):
+        if c.ndim == 1:
+            out[nm] = rows[j]
+            j += 1
+        else:
+            out[nm] = rows[j:j + c.shape[1]]
+            j += c.shape[1]
+    return out
+
+
+def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
     kinds = mats.kinds_present
+    if rows is None:
+        rows = _material_rows(mats, mat, ("color", "tex_scale", "tex_color2", "tex_direction") if kinds else ("color",))
+    base = rows["color"]
     if not kinds:
         return base
-    k = mats.tex_kind[mat]
-    scale = mats.tex_scale[mat]
+    k = _gather_rows(mats.tex_kind, mat)
+    scale = rows["tex_scale"]
     wuv = rate * width[None]
     frac = jnp.zeros_like(base[0])
     if tx.CHECKER in kinds:
         frac = jnp.where(k == tx.CHECKER, tx.checker(uv, wuv, scale, filtered), frac)
     if tx.STRIPES in kinds:
-        dirn = _gather_rows(mats.tex_direction, mat)
+        dirn = rows["tex_direction"]
         frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, scale, dirn, filtered), frac)
-    c2 = _gather_rows(mats.tex_color2, mat)
+    c2 = rows["tex_color2"]
     color = base + (c2 - base) * frac[None]
     if tx.IMAGE in kinds:
-        img_id = mats.tex_image[mat]
+        img_id = _gather_rows(mats.tex_image, mat)
         for j, img in enumerate(mats.images):
             sel = (k == tx.IMAGE) & (img_id == j)
             color = jnp.where(sel[None], base * tx.bilinear(img, uv), color)
@@ -99,49 +134,85 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     front = cos_d < 0
     n_s = V.vsel(front, hit.normal, -hit.normal)  # faces the incoming ray
     cos_i = jnp.abs(cos_d)
-    eps = EPS_REL * (1.0 + jnp.max(jnp.abs(p), 0))
+    eps = EPS_REL * (1.0 + jnp.maximum(jnp.maximum(jnp.abs(p[0]), jnp.abs(p[1])), jnp.abs(p[2])))
     p_out = p + eps[None] * n_s
     p_in = p - eps[None] * n_s
 
     cw_hit = cw + spread * t
     footprint = V.safe_div(cw_hit, jnp.maximum(cos_i, 0.25))
-    color = _surface_color(mats, mat, hit.uv, hit.rate, footprint, st.filter_textures)
-    T = mats.transparency[mat]
-    R = _gather_rows(mats.reflectivity, mat)
-    ior = mats.ior[mat]
+    names = ("color", "transparency", "reflectivity", "ior")
+    if st.shading == "classic":
+        names += ("diffuse", "specular", "shininess", "ambient")
+    if mats.kinds_present:
+        names += ("tex_scale", "tex_color2", "tex_direction")
+    rows = _material_rows(mats, mat, names)
+    color = _surface_color(mats, mat, hit.uv, hit.rate, footprint, st.filter_textures, rows)
+    T = rows["transparency"]
+    R = rows["reflectivity"]
+    ior = rows["ior"]
 
     # --- direct light -----------------------------------------------------
     L = scene.lights.position.shape[0]
     n = o.shape[1]
     local = jnp.zeros_like(o)
     if L:
-        lp = scene.lights.position.T[:, :, None]  # (3, L, 1)
-        Lv = lp - p_out[:, None, :]  # (3, L, n)
-        dist = V.norm(Lv)  # (L, n)
-        ldir = V.normalize(Lv)
-        cosl = V.dot(n_s[:, None, :], ldir)  # (L, n)
-        lit = (cosl > 0) & valid[None]
-        counts = occluder_counts(kinds, jnp.broadcast_to(p_out[:, None, :], Lv.shape).reshape(3, L * n),
-                                 ldir.reshape(3, L * n), (dist * (1.0 - 1e-6)).reshape(L * n),
-                                 mats.color.shape[0]).reshape(L, n, -1)
-        I = scene.lights.intensity.T[:, :, None]  # (3, L, 1)
-        if st.shading == "classic":
-            has = counts > 0
-            tr = mats.transparency[None, None, :]
-            base = jnp.where(has, tr, 1.0)
-            trans = jnp.prod(jnp.where(has, base ** jnp.where(has, counts, 1.0), 1.0), -1)  # (L, n)
-            diff = (mats.diffuse[mat] * (1.0 - T))[None] * jnp.maximum(cosl, 0.0)
-            rv = V.dot(V.reflect(-ldir, n_s[:, None, :]), -d[:, None, :])
-            spec = mats.specular[mat][None] * V.safe_pow(rv, mats.shininess[mat][None])
-            spec = jnp.where(lit, spec, 0.0)
-            per = I * (trans * jnp.where(lit, 1.0, 0.0))[None] * (diff[None] * color[:, None, :] + spec[None])
-            local = jnp.sum(per, 1)
+        # One light at a time on (n,) / (3, n) arrays: no (3, L, n) broadcasts and no
+        # reductions over short axes (XLA:CPU runs those, and their transposes, slowly).
+        Lv, dist, ldir, cosl, lit = [], [], [], [], []
+        for l in range(L):
+            v = scene.lights.position[l][:, None] - p_out
+            Lv.append(v)
+            dist.append(V.norm(v))
+            ldir.append(V.normalize(v))
+            cosl.append(V.dot(n_s, ldir[l]))
+            lit.append((cosl[l] > 0) & valid)
+        M = mats.color.shape[0]
+        I = scene.lights.intensity
+        classic = st.shading == "classic"
+
+        def shadow(p0, dirn, tmax):
+            c = occluder_counts(kinds, p0, dirn, tmax, M)  # (n, M)
+            if classic:
+                return c
+            blocked = c[:, 0] != 0
+            for m in range(1, M):
+                blocked = blocked | (c[:, m] != 0)
+            return blocked
+
+        def no_shadow(p0, dirn, tmax):
+            return jnp.zeros((n, M), dt) if classic else jnp.zeros((n,), bool)
+
+        if classic:
+            diffuse = rows["diffuse"] * (1.0 - T)
+            specular = rows["specular"]
+            shininess = rows["shininess"]
         else:
-            vis = (jnp.sum(counts, -1) == 0) & lit
-            E = jnp.sum(I * jnp.where(vis, jnp.maximum(cosl, 0.0) * V.safe_div(1.0, dist * dist), 0.0)[None], 1)
+            E = jnp.zeros_like(o)
+        for l in range(L):
+            # Shadow rays of one light, under a cond: skipped when no ray faces the
+            # light, and the result is materialised once (XLA:CPU would otherwise
+            # fuse the occlusion tests into each colour channel's shading).
+            sh = jax.lax.cond(jnp.any(lit[l]), shadow, no_shadow, p_out, ldir[l], dist[l] * (1.0 - 1e-6))
+            sh = checkpoint_name(sh, "raytrax_shadow")
+            if classic:
+                trans = jnp.ones_like(t)
+                for m in range(M):  # shadow transmission: each crossing multiplies by the occluder's transparency
+                    has = sh[:, m] > 0
+                    trans = trans * jnp.where(has, jnp.where(has, mats.transparency[m], 1.0)
+                                              ** jnp.where(has, sh[:, m], 1.0), 1.0)
+                diff = diffuse * jnp.maximum(cosl[l], 0.0)
+                rv = V.dot(V.reflect(-ldir[l], n_s), -d)
+                spec = jnp.where(lit[l], specular * V.safe_pow(rv, shininess), 0.0)
+                s = trans * jnp.where(lit[l], 1.0, 0.0)
+                local = local + I[l][:, None] * s[None] * (diff[None] * color + spec[None])
+            else:
+                vis = jnp.logical_not(sh) & lit[l]
+                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0)
+                E = E + I[l][:, None] * g[None]
+        if not classic:
             local = ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * E
     if st.shading == "classic":
-        local = local + env.ambient[:, None] * (mats.ambient[mat] * (1.0 - T))[None] * color
+        local = local + env.ambient[:, None] * (rows["ambient"] * (1.0 - T))[None] * color
 
     # --- specular children -------------------------------------------------
     eta = jnp.where(front, V.safe_div(1.0, ior), ior)
@@ -165,10 +236,28 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
 
 
+def _permutation(active):
+    """Stable partition of ``active (n,)``: ``order (n,)`` lists the live rays first
+    (each group in its original order), ``dest (n,)`` is its inverse (the slot of
+    each ray). Two cumulative sums and one scatter: no sort."""
+    n = active.shape[0]
+    live = jnp.cumsum(active, dtype=jnp.int32)
+    dest = jnp.where(active, live - 1, live[-1] + jnp.arange(n, dtype=jnp.int32) - live)
+    order = jnp.zeros((n,), jnp.int32).at[dest].set(jnp.arange(n, dtype=jnp.int32), unique_indices=True)
+    return order, dest
+
+
+def _take_unique(a, idx):
+    """``a[..., idx]`` for indices without repeats: the transpose is then a scatter
+    with ``unique_indices`` (no collisions to combine)."""
+    return a.at[..., idx].get(unique_indices=True, mode="promise_in_bounds")
+
+
 def _compact_map(fn, args, active, sub):
     """Apply ``fn`` to the rays of ``args`` (arrays with the ray axis last) but skip
     sub-tiles of ``sub`` rays that hold no ``active`` ray: live rays are moved to
-    the front first. Returns ``fn``'s outputs in the original ray order."""
+    the front first (a stable partition, no sort). Returns ``fn``'s outputs in the
+    original ray order."""
     n = active.shape[0]
     shapes = jax.eval_shape(fn, *args)
     if n <= sub:
@@ -176,13 +265,14 @@ def _compact_map(fn, args, active, sub):
         return jax.lax.cond(jnp.any(active), fn, zeros, *args)
     S = math.ceil(n / sub)
     pad = S * sub - n
-    order = jnp.argsort(jnp.logical_not(active), stable=True)
-    order = jnp.concatenate([order, jnp.full((pad,), n - 1, order.dtype)]) if pad else order
-    act = jnp.concatenate([active, jnp.zeros((pad,), bool)]) if pad else active
-    act = act[order] if not pad else jnp.concatenate([active[order[:n]], jnp.zeros((pad,), bool)])
+    if pad:  # padding rays: inactive, so they sort to the end
+        active = jnp.concatenate([active, jnp.zeros((pad,), bool)])
+        args = jax.tree_util.tree_map(lambda a: jnp.pad(a, [(0, 0)] * (a.ndim - 1) + [(0, pad)]), args)
+    order, dest = _permutation(active)
+    act = jnp.arange(S * sub, dtype=jnp.int32) < jnp.sum(active, dtype=jnp.int32)
 
     def split(a):
-        a = jnp.take(a, order, axis=-1)
+        a = _take_unique(a, order)
         a = a.reshape(a.shape[:-1] + (S, sub))
         return jnp.moveaxis(a, -2, 0)
 
@@ -195,15 +285,15 @@ def _compact_map(fn, args, active, sub):
 
     def one(x):
         a, live = x
-        return jax.lax.cond(jnp.any(live), fn, zeros, *a)
+        return jax.lax.cond(live[0], fn, zeros, *a)
 
     outs = jax.lax.map(one, (sub_args, sub_act))
-    inv = jnp.argsort(order[:n]) if not pad else jnp.argsort(order[:n])
+    dest_n = dest[:n]
 
     def merge(a):
         a = jnp.moveaxis(a, 0, -2)
-        a = a.reshape(a.shape[:-2] + (S * sub,))[..., :n]
-        return jnp.take(a, inv, axis=-1)
+        a = a.reshape(a.shape[:-2] + (S * sub,))
+        return _take_unique(a, dest_n)
 
     return jax.tree_util.tree_map(merge, outs)
 
@@ -223,14 +313,31 @@ def _top_branches(kids, B, n):
 
     co, cd, cwt = two(po, pi), two(rd, td), two(wr, wt)
     ccw = jnp.concatenate([cwh.reshape(B, n), cwh.reshape(B, n)], 0)
-    score = jax.lax.stop_gradient(jnp.max(cwt, 0)).T  # (n, 2B)
-    _, top = jax.lax.top_k(score, B)  # (n, B)
-    top = top.T  # (B, n)
+    score = jax.lax.stop_gradient(jnp.maximum(jnp.maximum(cwt[0], cwt[1]), cwt[2]))  # (2B, n)
+    # The B best of 2B by rank counting (lax.top_k's order: descending, ties to the
+    # lower index), elementwise: for small B cheaper on CPU than a top_k call.
+    rank = []
+    for j in range(2 * B):
+        r = jnp.zeros((n,), jnp.int32)
+        for k in range(2 * B):
+            if k != j:
+                r = r + (score[k] >= score[j] if k < j else score[k] > score[j]).astype(jnp.int32)
+        rank.append(r)
+    top = []
+    for r in range(B):
+        pick = jnp.zeros((n,), jnp.int32)
+        for j in range(2 * B):
+            pick = jnp.where(rank[j] == r, j, pick)
+        top.append(pick)
+    top = jnp.stack(top)  # (B, n)
 
-    def g(a):
-        return jnp.take_along_axis(a, jnp.broadcast_to(top[None], (a.shape[0],) + top.shape), 1).reshape(a.shape[0], -1)
+    def g(a):  # a (k, 2B, n) -> (k, B n): a select chain (elementwise, also in reverse mode)
+        out = jnp.broadcast_to(a[:, :1], (a.shape[0], B, n))
+        for j in range(1, 2 * B):
+            out = jnp.where(top[None] == j, a[:, j:j + 1], out)
+        return out.reshape(a.shape[0], -1)
 
-    return g(co), g(cd), g(cwt), jnp.take_along_axis(ccw, top, 0).reshape(-1)
+    return g(co), g(cd), g(cwt), g(ccw[None])[0]
 
 
 def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions):
@@ -252,6 +359,7 @@ def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions):
         (o_, d_, w_, cw_), radiance = carry
         last = depth == st.max_depth
 
+        @functools.partial(jax.checkpoint, policy=_SHADE_POLICY)
         def fn(a, b, c, e):
             return _shade(scene, kinds, a, b, c, e, spread, opts, last)
 
@@ -300,10 +408,91 @@ def _render(scene: Scene, opts: RenderOptions, key):
 _render_jit = eqx.filter_jit(_render)
 
 
+def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
+    """Each light's direct contribution ``(L, S, 3)`` at the first hit of the camera
+    rays through image positions ``xy (2, S)`` (no gradient; for shadow edges)."""
+    from .edges import camera_rays
+
+    st = opts.settings
+    W, H = st.width, st.height
+    scene = jax.lax.stop_gradient(scene)
+    dt = scene.dtype
+    L = scene.lights.position.shape[0]
+    S = xy.shape[1]
+    if not L:
+        return jnp.zeros((0, S, 3), dt)
+    env = Environment(jnp.zeros((3,), dt), jnp.zeros((3,), dt))
+    half_h = jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5)
+    spread = 2.0 * half_h / H / n
+    chunk = min(S, opts.tile_rays)
+    nc = math.ceil(S / chunk)
+    xyc = jnp.pad(xy, ((0, 0), (0, nc * chunk - S)), mode="edge").reshape(2, nc, chunk).transpose(1, 0, 2)
+    kinds = prepare(scene)
+
+    def light(args):
+        pos, inten = args
+        sk = dataclasses.replace(scene, lights=PointLights(pos[None], inten[None]), environment=env)
+
+        def one(x):
+            o, d = camera_rays(sk.camera, x, W, H)
+            c, _ = _shade(sk, kinds, o, d, jnp.ones_like(o), jnp.zeros_like(o[0]), spread, opts,
+                          jnp.asarray(False))
+            return c.T
+
+        return jax.lax.map(one, xyc).reshape(nc * chunk, 3)[:S]
+
+    return jax.lax.map(light, (scene.lights.position, scene.lights.intensity))
+
+
+def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int):
+    """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
+    gradient; the jump across an edge)."""
+    from .edges import camera_rays
+
+    st = opts.settings
+    W, H = st.width, st.height
+    scene = jax.lax.stop_gradient(scene)
+    half_h = jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5)
+    spread = 2.0 * half_h / H / n
+    M = xy.shape[1]
+    chunk = max(1, min(M, opts.tile_rays // st.branches))
+    nc = math.ceil(M / chunk)
+    xyc = jnp.pad(xy, ((0, 0), (0, nc * chunk - M)), mode="edge").reshape(2, nc, chunk).transpose(1, 0, 2)
+    kinds = prepare(scene)
+
+    def one(x):
+        o, d = camera_rays(scene.camera, x, W, H)
+        return _trace(scene, kinds, o, d, spread, opts).T
+
+    return jax.lax.map(one, xyc).reshape(nc * chunk, 3)[:M]
+
+
+def _render_edges(scene: Scene, opts: RenderOptions, eo):
+    """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
+    term of :mod:`raytrax.edges` (zero in value) found on the same samples."""
+    from .edges import edge_term
+
+    st = opts.settings
+    n = eo.samples
+    W, H = st.width, st.height
+    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=W * n, height=H * n, spp=1),
+                               jitter=False)
+    samples = _render(scene, grid, None)  # (H n, W n, 3), differentiable
+    img = samples.reshape(H, n, W, n, 3).mean((1, 3))
+    f_grid = jax.lax.stop_gradient(samples).reshape(-1, 3)
+    edge, _ = edge_term(scene, W, H, eo, lambda xy: _radiance_at(scene, opts, xy, n),
+                        lambda xy: _light_terms(scene, opts, xy, n), f_grid)
+    return img + edge
+
+
+_render_edges_jit = eqx.filter_jit(_render_edges)
+
+
 def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] = None,
            spp: Optional[int] = None, max_depth: Optional[int] = None, key=None,
            filter_textures: Optional[bool] = None, branches: Optional[int] = None,
-           tile_rays: int = RAYS_PER_TILE, devices=None) -> jax.Array:
+           tile_rays: int = RAYS_PER_TILE, devices=None, edge_gradients: bool = False,
+           edge_budget: Optional[int] = None) -> jax.Array:
     """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
 
     Keywords override the scene's own render settings (same names as the scene
@@ -316,6 +505,15 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
     integer shards the image tiles over that many of ``jax.devices()`` with
     ``jax.shard_map`` (same image, gradients summed over devices).
     ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
+
+    ``edge_gradients=True`` adds the boundary terms of the derivative (moving
+    silhouettes, surface crossings and hard-shadow edges; see
+    :mod:`raytrax.edges` and ``docs/gradients.md``). The image is the same (it
+    is rendered as the ``sqrt(spp) x sqrt(spp)`` grid of samples per pixel, and
+    edges are found between neighbouring samples); its gradient converges to
+    the derivative of the pixel-integrated image as ``spp`` grows. Needs
+    ``key=None``. ``edge_budget``: the most sample pairs with an edge between
+    them (default: a quarter of the samples, at least 4096; exceeding it is a runtime error).
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``.
@@ -332,4 +530,13 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
     else:
         raise ValueError(f"devices: expected None, 'all' or an integer in [1, {jax.device_count()}], got {devices!r}")
     opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev)
+    if edge_gradients:
+        from .edges import EdgeOptions
+
+        if key is not None:
+            raise ValueError("edge_gradients: edges are found on the regular n x n sample grid; "
+                             "pass key=None (no jitter)")
+        if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
+            raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
+        return _render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget))
     return _render_jit(scene, opts, key)

@@ -1,0 +1,170 @@
+"""Edge gradients (``render(..., edge_gradients=True)``): accuracy and cost against plain AD.
+
+    python benchmarks/bench_edges.py                      # accuracy (16 x 12) and cost (64 x 48), ~10 min
+    python benchmarks/bench_edges.py --no-accuracy --cost-size 128x96
+
+Scene: a checkered floor under two lights with a sphere, a lifted rotated box and
+a tetrahedron (classic shading, depth 1, float64). The scalar differentiated is
+``L = mean(R * image)`` with ``R`` a fixed random image (what one step of any image
+loss sees).
+
+* accuracy: ``jax.grad`` of ``L`` with respect to both light positions, the
+  sphere's centre and radius and a translation of the box, by plain AD and with
+  edge gradients at spp 16 / 64 / 256, against central differences of renders
+  at spp ``--ref-spp`` (default 2304, a 48 x 48 grid per pixel) with step
+  ``--step`` (0.03 world units: edges move 5-10 of the reference's sample rows),
+  and the same at a second step to show the reference has converged;
+* cost: compile time, steady time (median of 3) and XLA's temporary memory
+  (``compiled.memory_analysis()``) of ``value_and_grad`` with and without edge
+  gradients at the same spp, and of the forward render. Ratios are what to
+  compare: the machine is shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import raytrax as rt  # noqa: E402
+
+
+def scene(width, height, spp, dtype=jnp.float64):
+    b = rt.SceneBuilder("classic", width=width, height=height, spp=spp, max_depth=1,
+                        background=(0.2, 0.2, 0.25), ambient=(0.2, 0.2, 0.2))
+    b.camera(position=(0.5, 5.0, 5.5), look_at=(0, 0.3, 0), fov=38)
+    b.light((2.0, 5.0, 1.5), intensity=(0.7, 0.7, 0.7))
+    b.light((-3.0, 4.0, -0.5), intensity=(0.5, 0.45, 0.4))
+    b.material("floor", color=(0.9, 0.9, 0.85), texture=rt.Checker(color2=(0.3, 0.35, 0.4), scale=1.3))
+    b.material("ball", color=(0.8, 0.3, 0.2), specular=0.3, shininess=20)
+    b.material("crate", color=(0.2, 0.5, 0.8))
+    b.material("tet", color=(0.3, 0.8, 0.3))
+    b.plane((0, 0, 0), (0, 1, 0), "floor")
+    b.sphere((-0.4, 0.9, 0.3), 0.55, "ball")
+    b.box((0.6, 0.5, -0.9), (1.4, 1.2, -0.1), "crate", rotation=(0, 25, 0))
+    b.tetrahedron((-1.2, 0.6, -1.2), 1.0, "tet")
+    return b.build(dtype)
+
+
+def make_loss(sc):
+    p = rt.parameters(sc)
+    H, W = sc.settings.height, sc.settings.width
+    R = jnp.asarray(np.random.default_rng(0).uniform(size=(H, W, 3)), sc.dtype)
+    q0 = {"light0": p["light[0].position"], "light1": p["light[1].position"], "center": p["object[1].center"],
+          "radius": p["object[1].radius"], "box": jnp.zeros(3, sc.dtype)}
+
+    def loss(q, **kw):
+        s = rt.with_parameters(sc, {"light[0].position": q["light0"], "light[1].position": q["light1"],
+                                    "object[1].center": q["center"], "object[1].radius": q["radius"],
+                                    "object[2].min": p["object[2].min"] + q["box"],
+                                    "object[2].max": p["object[2].max"] + q["box"]})
+        return jnp.mean(R * rt.render(s, **kw))
+
+    return loss, q0
+
+
+def flat(g):
+    return np.concatenate([np.atleast_1d(np.asarray(g[k], float)) for k in ("light0", "light1", "center", "radius",
+                                                                          "box")])
+
+
+LABELS = [f"{n}[{i}]" for n, k in (("light0", 3), ("light1", 3), ("center", 3), ("radius", 1), ("box", 3))
+          for i in range(k)]
+
+
+def fd(loss, q0, spp, step):
+    f = jax.jit(lambda q: loss(q, spp=spp))
+    out = []
+    for name in ("light0", "light1", "center", "radius", "box"):
+        v = jnp.atleast_1d(q0[name])
+        for c in range(v.shape[0]):
+            e = jnp.zeros_like(v).at[c].set(step).reshape(jnp.shape(q0[name]))
+            out.append(float((f(q0 | {name: q0[name] + e}) - f(q0 | {name: q0[name] - e})) / (2 * step)))
+    return np.array(out)
+
+
+def accuracy(a):
+    sc = scene(16, 12, 16)
+    loss, q0 = make_loss(sc)
+    cols = {}
+    t = time.perf_counter()
+    cols["plain AD (spp 64)"] = flat(jax.grad(lambda q: loss(q, spp=64))(q0))
+    for spp in (16, 64, 256):
+        cols[f"edge spp {spp}"] = flat(jax.grad(lambda q: loss(q, spp=spp, edge_gradients=True))(q0))
+        print(f"  edge spp {spp} done ({time.perf_counter() - t:.0f} s)", flush=True)
+    ref = fd(loss, q0, a.ref_spp, a.step)
+    ref2 = fd(loss, q0, a.ref_spp, 2 * a.step)
+    print(f"\nAccuracy, 16 x 12, reference: central differences at spp {a.ref_spp}, step {a.step} "
+          f"(and {2 * a.step} to show convergence); relative error in brackets\n")
+    head = ["component", f"FD {a.step}", f"FD {2 * a.step}"] + list(cols)
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    worst = {k: 0.0 for k in cols}
+    for i, lab in enumerate(LABELS):
+        cells = [lab, f"{ref[i]:+.5f}", f"{ref2[i]:+.5f} ({(ref2[i] - ref[i]) / ref[i]:+.1%})"]
+        for k, v in cols.items():
+            e = (v[i] - ref[i]) / ref[i]
+            worst[k] = max(worst[k], abs(e))
+            cells.append(f"{v[i]:+.5f} ({e:+.1%})")
+        print("| " + " | ".join(cells) + " |")
+    print("\nlargest relative error per column: " + ", ".join(f"{k}: {v:.1%}" for k, v in worst.items()))
+
+
+def _compiled(fn, q0):
+    t = time.perf_counter()
+    c = jax.jit(fn).lower(q0).compile()
+    ct = time.perf_counter() - t
+    times = []
+    for _ in range(3):
+        t = time.perf_counter()
+        jax.block_until_ready(c(q0))
+        times.append(time.perf_counter() - t)
+    mem = c.memory_analysis()
+    temp = getattr(mem, "temp_size_in_bytes", float("nan")) / 2**20 if mem is not None else float("nan")
+    return ct, statistics.median(times), temp
+
+
+def cost(a):
+    W, H = (int(x) for x in a.cost_size.split("x"))
+    sc = scene(W, H, a.cost_spp, jnp.float32)
+    loss, q0 = make_loss(sc)
+    rows = [("forward render", lambda q: loss(q)),
+            ("value_and_grad, plain AD", jax.value_and_grad(lambda q: loss(q))),
+            ("value_and_grad, edge_gradients=True", jax.value_and_grad(lambda q: loss(q, edge_gradients=True)))]
+    print(f"\nCost, {W} x {H}, spp {a.cost_spp}, float32 (compile s, steady s, XLA temp MiB)\n")
+    print("| what | compile (s) | time (s) | temp memory (MiB) |\n|---|---|---|---|")
+    res = {}
+    for name, fn in rows:
+        res[name] = _compiled(fn, q0)
+        print(f"| {name} | {res[name][0]:.1f} | {res[name][1]:.3f} | {res[name][2]:.1f} |", flush=True)
+    p, e = res["value_and_grad, plain AD"], res["value_and_grad, edge_gradients=True"]
+    f = res["forward render"]
+    print(f"\nedge / plain gradient: time {e[1] / p[1]:.2f}x, compile {e[0] / p[0]:.2f}x, memory {e[2] / p[2]:.2f}x; "
+          f"edge gradient / forward render: {e[1] / f[1]:.2f}x")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--no-accuracy", action="store_true")
+    ap.add_argument("--no-cost", action="store_true")
+    ap.add_argument("--ref-spp", type=int, default=2304)
+    ap.add_argument("--step", type=float, default=0.03)
+    ap.add_argument("--cost-size", default="64x48")
+    ap.add_argument("--cost-spp", type=int, default=16)
+    a = ap.parse_args(argv)
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}")
+    if not a.no_accuracy:
+        accuracy(a)
+    if not a.no_cost:
+        cost(a)
+
+
+if __name__ == "__main__":
+    main()
