@@ -436,7 +436,7 @@ def _pairs(Gw, Gh):
     return a, b, horiz
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_grid):
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_grid, _debug=False):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
     whose derivative with respect to ``scene`` is the edge contribution, and the
     number of sample pairs with an edge between them.
@@ -486,6 +486,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_g
     K = min(K, act.shape[0])
     count = jnp.sum(act)
     (flat,) = jnp.nonzero(act, size=K, fill_value=0)
+    flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
     pair = flat // nslot
     slot = flat % nslot
@@ -589,6 +590,8 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_g
         df = jnp.where(vis[:, None], df_vis, df_sh)
     else:
         df = df_vis
+    if _debug:  # intermediate values, for tests and diagnosis
+        return dict(ok=ok, vis=vis, ev=ev, xs=xs, den=den, gdir=gdir, df=df, count=count)
     coef = -df * (jnp.sign(gdir) * V.safe_div(1.0, den) / n)[:, None]
     coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
     coef = jax.lax.stop_gradient(coef)
