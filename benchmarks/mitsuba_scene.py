@@ -76,7 +76,7 @@ How the raytrax and Mitsuba configurations differ:
   benchmarks/mitsuba_scene.py (a subclass of Mitsuba's ADIntegrator, so
   sampler, camera rays and film splatting are Mitsuba's code), run as a
   wavefront that compacts live rays at each depth and follows *every* delta
-  branch (full tree). raytrax tests every ray against every primitive (no BVH).
+  branch (full tree). raytrax tests every ray against every primitive, except triangle lists of more than 64 (a BVH).
 - raytrax keeps at most `branches` (= 2 with glass) specular rays per camera
   sample per depth, dropping the lightest; Mitsuba's integrator keeps all of them.
 - Sampling: raytrax uses the cell centres of an n x n grid per pixel; Mitsuba's
