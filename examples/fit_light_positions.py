@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import jax
@@ -90,26 +91,15 @@ def run(width=96, height=72, steps=100, solver="levenberg_marquardt", out=None, 
 
 
 def save_figures(out, target, start_img, fit_img, res, verbose=True):
-    import matplotlib
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # examples/_figures.py
+    from _figures import image_grid, pyplot, save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
-    from raytrax.imageio import to_display
-
-    os.makedirs(out, exist_ok=True)
     diff = np.abs(np.asarray(fit_img) - np.asarray(target))
     panels = [("target", target), ("start", start_img), ("fit", fit_img),
               (f"|fit - target| x 10 (max {diff.max():.1e})", diff * 10)]
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.6))
-    for ax, (title, img) in zip(axes, panels):
-        ax.imshow(to_display(img), interpolation="nearest")
-        ax.set_title(title)
-        ax.set_axis_off()
-    fig.tight_layout()
-    p1 = os.path.join(out, "fit_light_positions.png")
-    fig.savefig(p1, dpi=100)
-    plt.close(fig)
+    p1 = image_grid(os.path.join(out, "fit_light_positions.png"), panels)
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
     ax[0].semilogy(np.maximum(res.loss_history, 1e-30), marker=".")
@@ -124,10 +114,7 @@ def save_figures(out, target, start_img, fit_img, res, verbose=True):
     ax[1].set_ylabel("|position - truth|")
     ax[1].set_title("light position error")
     ax[1].legend()
-    fig.tight_layout()
-    p2 = os.path.join(out, "fit_light_positions_loss.png")
-    fig.savefig(p2, dpi=100)
-    plt.close(fig)
+    p2 = save(fig, os.path.join(out, "fit_light_positions_loss.png"))
     if verbose:
         print(f"saved {p1} and {p2}")
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import jax
@@ -80,36 +81,22 @@ def run(width=48, height=36, spp=16, steps=30, out=None, verbose=True):
 
 
 def save_figures(out, target, start_img, results, verbose=True):
-    import matplotlib
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # examples/_figures.py
+    from _figures import image_grid, pyplot, save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
-    from raytrax.imageio import to_display
-
-    os.makedirs(out, exist_ok=True)
     panels = [("target", target), ("start", start_img)]
     for label, (res, err) in results.items():
         panels.append((f"{label} (error {err:.2g})", rt.render(res.scene)))
-    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.4))
-    for ax, (title, img) in zip(axes, panels):
-        ax.imshow(to_display(img), interpolation="nearest")
-        ax.set_title(title)
-        ax.set_axis_off()
-    fig.tight_layout()
-    p1 = os.path.join(out, "fit_occluder_from_shadow.png")
-    fig.savefig(p1, dpi=100)
-    plt.close(fig)
+    p1 = image_grid(os.path.join(out, "fit_occluder_from_shadow.png"), panels)
     fig, ax = plt.subplots(figsize=(5, 3.6))
     for label, (res, _) in results.items():
         ax.semilogy(np.maximum(res.loss_history, 1e-30), marker=".", label=label)
     ax.set_xlabel("step")
     ax.set_ylabel("loss (MSE)")
     ax.legend()
-    fig.tight_layout()
-    p2 = os.path.join(out, "fit_occluder_from_shadow_loss.png")
-    fig.savefig(p2, dpi=100)
-    plt.close(fig)
+    p2 = save(fig, os.path.join(out, "fit_occluder_from_shadow_loss.png"))
     if verbose:
         print(f"saved {p1} and {p2}")
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import jax
@@ -99,26 +100,15 @@ def run(width=128, height=96, steps=300, solver="lbfgs", noise=0.01, smooth=0.0,
 
 
 def save_figures(out, target, start_img, fit_img, truth, res, noise=0.0, verbose=True):
-    import matplotlib
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # examples/_figures.py
+    from _figures import image_grid, pyplot, save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
-    from raytrax.imageio import to_display
-
-    os.makedirs(out, exist_ok=True)
-    fig, axes = plt.subplots(2, 3, figsize=(12, 7.2))
     row0 = [("noisy target", target), ("start render", start_img), ("fit render", fit_img)]
     row1 = [("true texture", truth), ("start texture", res.initial_params[NAME]),
             ("fitted texture", res.params[NAME])]
-    for ax, (title, img) in zip(axes.ravel(), row0 + row1):
-        ax.imshow(to_display(img), interpolation="nearest")
-        ax.set_title(title)
-        ax.set_axis_off()
-    fig.tight_layout()
-    p1 = os.path.join(out, "fit_texture.png")
-    fig.savefig(p1, dpi=100)
-    plt.close(fig)
+    p1 = image_grid(os.path.join(out, "fit_texture.png"), row0 + row1, rows=2)
 
     fig, ax = plt.subplots(figsize=(5, 3.6))
     ax.semilogy(res.loss_history, marker=".", label="loss")
@@ -128,10 +118,7 @@ def save_figures(out, target, start_img, fit_img, truth, res, noise=0.0, verbose
     ax.set_xlabel("step")
     ax.set_ylabel("loss (MSE)")
     ax.set_title("texture fit")
-    fig.tight_layout()
-    p2 = os.path.join(out, "fit_texture_loss.png")
-    fig.savefig(p2, dpi=100)
-    plt.close(fig)
+    p2 = save(fig, os.path.join(out, "fit_texture_loss.png"))
     if verbose:
         print(f"saved {p1} and {p2}")
 

@@ -51,6 +51,20 @@ def subpixel_offsets(spp: int, dtype):
     return jnp.stack([sx.ravel(), sy.ravel()], -1)
 
 
+def rays_through(camera: Camera, xy, width: int, height: int):
+    """Origins and unit directions ``(3, M)`` of the rays through continuous image
+    positions ``xy (2, M)`` in pixels (x to the right from the left edge, y down
+    from the top; pixel ``(row, col)`` covers ``[col, col + 1) x [row, row + 1)``)."""
+    x = xy[0] / width * 2.0 - 1.0
+    y = 1.0 - xy[1] / height * 2.0
+    half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
+    half_w = half_h * (width / height)
+    fwd, right, up = camera.basis()
+    d = fwd[:, None] + (x * half_w)[None] * right[:, None] + (y * half_h)[None] * up[:, None]
+    d = V.normalize(d)
+    return jnp.broadcast_to(camera.position[:, None], d.shape), d
+
+
 def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=None):
     """Camera rays for flat pixel indices ``pix (P,)`` (row-major).
 
@@ -70,17 +84,8 @@ def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=Non
         j = jax.random.uniform(key, (2, spp, pix.shape[0]), dtype=dtype) - 0.5
         sx = sx + j[0] / n
         sy = sy + j[1] / n
-    x = (col[None, :] + sx) / width * 2.0 - 1.0
-    y = 1.0 - (row[None, :] + sy) / height * 2.0
+    xy = jnp.stack([(col[None, :] + sx).ravel(), (row[None, :] + sy).ravel()])
+    o, d = rays_through(camera, xy, width, height)
     half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
-    half_w = half_h * (width / height)
-    fwd, right, up = camera.basis()
-    d = (
-        fwd[:, None, None]
-        + (x * half_w)[None] * right[:, None, None]
-        + (y * half_h)[None] * up[:, None, None]
-    )
-    d = V.normalize(d.reshape(3, -1))
-    o = jnp.broadcast_to(camera.position[:, None], d.shape)
     spread = 2.0 * half_h / height / n
     return o, d, spread

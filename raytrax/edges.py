@@ -68,6 +68,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _vec as V
+from .camera import rays_through
 from .intersect import _closest_kind, prepare
 from .shapes import euler_matrix
 
@@ -279,20 +280,6 @@ def first_t(P: Prims, ns, ids, o, d):
     return jnp.where(is_s, ts, tp)
 
 
-def camera_rays(camera, xy, width, height):
-    """Unit rays through continuous image positions ``xy (2, E)`` in pixels (x to
-    the right from the left edge, y down from the top), as in
-    :func:`raytrax.camera.primary_rays`."""
-    X = xy[0] / width * 2.0 - 1.0
-    Y = 1.0 - xy[1] / height * 2.0
-    half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
-    half_w = half_h * (width / height)
-    fwd, right, up = camera.basis()
-    d = fwd[:, None] + (X * half_w)[None] * right[:, None] + (Y * half_h)[None] * up[:, None]
-    d = V.normalize(d)
-    return jnp.broadcast_to(camera.position[:, None], d.shape), d
-
-
 MISS, DEPTH, SHADOW = 0, 1, 2
 
 
@@ -306,7 +293,7 @@ class Events(NamedTuple):
 
 def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height):
     """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``)."""
-    o, d = camera_rays(scene.camera, xy, width, height)
+    o, d = rays_through(scene.camera, xy, width, height)
     ta = first_t(P, ns, ev.p1, o, d)
     tb = first_t(P, ns, ev.p2, o, d)
     shadow = ev.typ == SHADOW
@@ -377,7 +364,7 @@ def primary_ids(scene, xy, width, height):
     """Global id (-1: background) of the first primitive seen through image
     positions ``xy (2, M)`` (no gradient)."""
     scene = jax.lax.stop_gradient(scene)
-    o, d = camera_rays(scene.camera, xy, width, height)
+    o, d = rays_through(scene.camera, xy, width, height)
     return _search(scene, prepare(scene), id_offsets(scene), o, d)[0]
 
 
@@ -392,7 +379,7 @@ def sample_records(scene, width, height, n):
     dt = scene.dtype
     jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
     xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
-    o, d = camera_rays(scene.camera, xy, width, height)
+    o, d = rays_through(scene.camera, xy, width, height)
     prim, t = _search(scene, kinds, off, o, d)
     hit = prim >= 0
     p = o + jnp.where(hit, t, 0.0)[None] * d

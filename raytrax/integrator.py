@@ -30,7 +30,7 @@ from jax.ad_checkpoint import checkpoint_name
 
 from . import _vec as V
 from . import textures as tx
-from .camera import primary_rays
+from .camera import primary_rays, rays_through
 from .intersect import closest_hit, occluder_counts, prepare
 from .materials import fresnel_dielectric, refract
 from .lights import PointLights
@@ -408,25 +408,32 @@ def _render(scene: Scene, opts: RenderOptions, key):
 _render_jit = eqx.filter_jit(_render)
 
 
-def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
-    """Each light's direct contribution ``(L, S, 3)`` at the first hit of the camera
-    rays through image positions ``xy (2, S)`` (no gradient; for shadow edges)."""
-    from .edges import camera_rays
+def _map_positions(fn, xy, chunk: int):
+    """``fn(xy_chunk (2, c)) -> (c, k)`` over image positions ``xy (2, M)`` in chunks
+    of at most ``chunk`` (``lax.map``; the last chunk is padded); returns ``(M, k)``."""
+    M = xy.shape[1]
+    c = max(1, min(M, chunk))
+    nc = math.ceil(M / c)
+    xyc = jnp.pad(xy, ((0, 0), (0, nc * c - M)), mode="edge").reshape(2, nc, c).transpose(1, 0, 2)
+    out = jax.lax.map(fn, xyc)
+    return out.reshape((nc * c,) + out.shape[2:])[:M]
 
+
+def _spread(scene: Scene, opts: RenderOptions, n: int):
+    """Cone spread of one sample of the ``n x n`` grid (see ``primary_rays``)."""
+    return 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / opts.settings.height / n
+
+
+def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
+    """Each light's direct contribution ``(L, M, 3)`` at the first hit of the camera
+    rays through image positions ``xy (2, M)`` (no gradient; for shadow edges)."""
     st = opts.settings
-    W, H = st.width, st.height
     scene = jax.lax.stop_gradient(scene)
     dt = scene.dtype
-    L = scene.lights.position.shape[0]
-    S = xy.shape[1]
-    if not L:
-        return jnp.zeros((0, S, 3), dt)
+    if not scene.lights.position.shape[0]:
+        return jnp.zeros((0, xy.shape[1], 3), dt)
     env = Environment(jnp.zeros((3,), dt), jnp.zeros((3,), dt))
-    half_h = jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5)
-    spread = 2.0 * half_h / H / n
-    chunk = min(S, opts.tile_rays)
-    nc = math.ceil(S / chunk)
-    xyc = jnp.pad(xy, ((0, 0), (0, nc * chunk - S)), mode="edge").reshape(2, nc, chunk).transpose(1, 0, 2)
+    spread = _spread(scene, opts, n)
     kinds = prepare(scene)
 
     def light(args):
@@ -434,12 +441,12 @@ def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
         sk = dataclasses.replace(scene, lights=PointLights(pos[None], inten[None]), environment=env)
 
         def one(x):
-            o, d = camera_rays(sk.camera, x, W, H)
+            o, d = rays_through(sk.camera, x, st.width, st.height)
             c, _ = _shade(sk, kinds, o, d, jnp.ones_like(o), jnp.zeros_like(o[0]), spread, opts,
                           jnp.asarray(False))
             return c.T
 
-        return jax.lax.map(one, xyc).reshape(nc * chunk, 3)[:S]
+        return _map_positions(one, xy, opts.tile_rays)
 
     return jax.lax.map(light, (scene.lights.position, scene.lights.intensity))
 
@@ -447,24 +454,16 @@ def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
 def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
     gradient; the jump across an edge)."""
-    from .edges import camera_rays
-
     st = opts.settings
-    W, H = st.width, st.height
     scene = jax.lax.stop_gradient(scene)
-    half_h = jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5)
-    spread = 2.0 * half_h / H / n
-    M = xy.shape[1]
-    chunk = max(1, min(M, opts.tile_rays // st.branches))
-    nc = math.ceil(M / chunk)
-    xyc = jnp.pad(xy, ((0, 0), (0, nc * chunk - M)), mode="edge").reshape(2, nc, chunk).transpose(1, 0, 2)
+    spread = _spread(scene, opts, n)
     kinds = prepare(scene)
 
     def one(x):
-        o, d = camera_rays(scene.camera, x, W, H)
+        o, d = rays_through(scene.camera, x, st.width, st.height)
         return _trace(scene, kinds, o, d, spread, opts).T
 
-    return jax.lax.map(one, xyc).reshape(nc * chunk, 3)[:M]
+    return _map_positions(one, xy, opts.tile_rays // st.branches)
 
 
 def _render_edges(scene: Scene, opts: RenderOptions, eo):
