@@ -107,8 +107,7 @@ def for_scene(scene) -> TriangleBVH | None:
     """A :class:`TriangleBVH` over the merged triangle list of ``scene`` (triangles,
     tetrahedron faces, mesh faces: the order of :func:`raytrax.intersect.prepare`),
     whatever its size; None without triangles. Host side (concrete arrays)."""
-    parts = [scene.triangles.vertices, scene.tetrahedra.triangles()[0]] + [m.triangles()[0] for m in scene.meshes]
-    tris = np.concatenate([np.asarray(t, np.float64) for t in parts], 0)
+    tris = np.asarray(scene.merged_triangles()[0], np.float64)
     return from_triangles(tris) if tris.shape[0] else None
 
 

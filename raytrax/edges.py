@@ -80,7 +80,7 @@ class Prims(NamedTuple):
     """Every primitive as a sphere or a convex planar polygon (component-major).
 
     Global ids: spheres ``[0, ns)``, then polygons: planes, quads, triangles
-    (in :func:`raytrax.intersect.prepare`'s merged order), box faces (6 per box,
+    (in the order of :meth:`raytrax.Scene.merged_triangles`), box faces (6 per box,
     face ``2 axis + (side > 0)``).
     """
 
@@ -114,21 +114,6 @@ def _quad_polys(corners):
     e = jnp.roll(c, -1, axis=1) - c
     n = jnp.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1])
     return _polys_from_edges(c, e, n)
-
-
-def merged_triangles(scene):
-    """All triangle-based primitives as one ``(T, 3, 3)`` array, in the order of
-    :func:`raytrax.intersect.prepare`."""
-    tris = []
-    if scene.triangles.vertices.shape[0]:
-        tris.append(scene.triangles.vertices)
-    if scene.tetrahedra.center.shape[0]:
-        tris.append(scene.tetrahedra.triangles()[0])
-    for mesh in scene.meshes:
-        tris.append(mesh.triangles()[0])
-    if not tris:
-        return jnp.zeros((0, 3, 3), scene.dtype)
-    return jnp.concatenate(tris, 0)
 
 
 def _face_signs():
@@ -180,7 +165,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
     solids = []  # (first polygon index, faces per solid, number of solids)
     if scene.tetrahedra.center.shape[0]:
         solids.append((count - off["plane"] + scene.triangles.vertices.shape[0], 4, scene.tetrahedra.center.shape[0]))
-    T = merged_triangles(scene)
+    T = scene.merged_triangles()[0]
     if T.shape[0]:
         v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
         origins = jnp.stack([v0, v1, v2, v2], 1)

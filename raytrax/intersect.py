@@ -70,21 +70,8 @@ def prepare(scene) -> list[Kind]:
             return S.quad_hit(c[:, 0].T, c[:, 1].T, c[:, 2].T, c[:, 3].T, o, d, t0)
 
         kinds.append(Kind("quad", _ng(S.quad_soa(qd)), qd.material, S.quad_t, qhit))
-    tris, mats = [], []
-    if scene.triangles.vertices.shape[0]:
-        tris.append(scene.triangles.vertices)
-        mats.append(scene.triangles.material)
-    if scene.tetrahedra.center.shape[0]:
-        t, m = scene.tetrahedra.triangles()
-        tris.append(t)
-        mats.append(m)
-    for mesh in scene.meshes:
-        t, m = mesh.triangles()
-        tris.append(t)
-        mats.append(m)
-    if tris:
-        T = jnp.concatenate(tris, 0)
-        M = jnp.concatenate(mats, 0)
+    T, M = scene.merged_triangles()
+    if T.shape[0]:
 
         def thit(i, o, d, t0):
             v = T[i]

@@ -106,6 +106,14 @@ class Scene(eqx.Module):
     def dtype(self):
         return self.camera.position.dtype
 
+    def merged_triangles(self):
+        """Every triangle-based primitive as one list: ``vertices (T, 3, 3)`` and
+        ``material (T,)``, in the order triangles, tetrahedron faces, mesh faces
+        (the order of intersection indices and of :mod:`raytrax.bvh`)."""
+        parts = [(self.triangles.vertices, self.triangles.material), self.tetrahedra.triangles()]
+        parts += [m.triangles() for m in self.meshes]
+        return jnp.concatenate([t for t, _ in parts], 0), jnp.concatenate([m for _, m in parts], 0)
+
     def replace_settings(self, **kw) -> "Scene":
         """A copy with some static render settings changed."""
         return dataclasses.replace(self, settings=dataclasses.replace(self.settings, **kw))
