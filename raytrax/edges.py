@@ -1,10 +1,12 @@
-"""Boundary terms of the image derivative: silhouettes and hard shadows.
+"""Boundary terms of the image derivative: silhouettes, hard shadows, and both
+seen through mirrors and glass.
 
 A pixel is the integral of the radiance ``f(x, theta)`` over its area. Where
 ``f`` jumps along a curve that moves with ``theta`` (an object's silhouette, the
 line where two surfaces cross, a crease between two faces, the edge of a hard
-shadow), the derivative of that integral has a *boundary* term besides the
-integral of ``df/dtheta`` that automatic differentiation of the samples gives:
+shadow, any of these seen in a mirror or through glass), the derivative of that
+integral has a *boundary* term besides the integral of ``df/dtheta`` that
+automatic differentiation of the samples gives:
 
     dI/dtheta = int_P df/dtheta dA  +  int_(edges in P) (f_minus - f_plus) v_n dl
 
@@ -15,21 +17,28 @@ when called with ``edge_gradients=True``.
 Method (analytic edge functions found between neighbouring samples; see
 ``docs/gradients.md`` for why this and not edge sampling or reparameterisation):
 
-1. A stop-gradient pass traces a regular ``n x n`` grid of samples per pixel and
-   records, per sample, which primitive the camera ray hits first (a box face or
-   a triangle counts as its own primitive) and, for every light, the first and
-   last occluder on the shadow segment from the hit point to the light.
+1. A stop-gradient pass traces a regular ``n x n`` grid of samples per pixel
+   along its *specular chain*: the camera ray, then at every mirror or glass
+   hit the dominant child (the refracted ray of a material whose transparency is
+   at least its reflectivity, unless totally internally reflected; else the
+   reflected ray), for as many levels as the render's ``max_depth``. Per level
+   it records the primitive hit (a box face or a triangle counts as its own
+   primitive) and, for every light, the first and last occluder on the shadow
+   segment from the hit to the light.
 2. Two neighbouring samples (horizontal or vertical) whose records differ
-   bracket an edge. For each such pair an *edge function* ``g(x, theta)`` of the
-   image position ``x`` is chosen, negative on the first sample's side and zero
-   on the edge, and smooth in both arguments:
+   bracket an edge, at the first chain level where they differ. The chain prefix
+   they share is a fixed sequence of primitives and branch kinds, so the ray at
+   that level is a smooth function of the image position ``x`` and of the scene
+   (this is how the refractive index moves an edge seen through glass). On that
+   ray an *edge function* ``g(x, theta)`` is chosen, negative on the first
+   sample's side and zero on the edge:
 
    * the first sample's primitive is missed by the second ray: ``g`` is that
      primitive's miss function (a sphere's ``|oc x d|^2 - r^2``, a polygon's
-     signed distance from the ray's plane hit to its boundary), and the same
-     the other way round;
+     signed distance from the ray's plane hit to its boundary, a convex solid's
+     ``t_near - t_far``), and the same the other way round;
    * both rays hit both primitives: ``g = t_A - t_B``, the depth difference,
-     whose zero set is where the two surfaces cross;
+     whose zero set is where the two surfaces cross (or a crease);
    * same primitive, different shadow record for light ``k``: ``g`` is the
      occluder's miss function on the line from the hit point ``p(x)`` to the
      light, so it moves with the light, the occluder and the receiver.
@@ -39,22 +48,33 @@ Method (analytic edge functions found between neighbouring samples; see
    ``dx_s/dtheta = -g_theta / g_x``. Rows of samples estimate the boundary
    integral by Fubini (``int dy sum_crossings (f_a - f_b) dx_s/dtheta``), columns
    likewise; weighting the two by ``|g_x|`` and ``|g_y|`` over ``|g_x| + |g_y|``
-   keeps every term bounded however the edge is oriented. Each crossing adds
+   keeps every term bounded however the edge is oriented.
+4. Each crossing stands for the piece of edge between the rows (columns) on
+   either side of it. Where the edge ends or changes character inside that strip
+   (a corner, a T-junction with another edge, the end of a shadow on another
+   object), the piece is cut there: the edge is followed to the neighbouring row
+   (Newton's method on ``g``) and the records on both sides of it are compared
+   with those at ``x_s``; if they differ, bisection finds where. The piece is
+   then split between the pixels it crosses. This makes the quadrature
+   error ``O(1/n^2)`` instead of ``O(1/n)`` at corners and pixel boundaries.
+5. Each crossing adds
 
-       c * g(x_s, theta),   c = -(f_a - f_b) (1/n) sign(g_dir) / (|g_x| + |g_y|)
+       c * g(x_s, theta),   c = -(f_a - f_b) ell sign(g_dir) / (|g_x| + |g_y|)
 
-   to the pixel that contains ``x_s``, with ``c`` and ``x_s`` held constant:
-   its value is ``0`` (``g(x_s) = 0``) and its derivative is the boundary term.
-   ``f_a - f_b`` is the jump of the whole sample radiance for visibility edges
-   and of that light's direct term for shadow edges.
+   (``ell``: the strip length the crossing stands for, ``1/n`` inside an edge)
+   to the pixels its piece covers, with ``c`` and ``x_s`` held constant: its
+   value is ``0`` (``g(x_s) = 0``) and its derivative is the boundary term.
+   ``f_a - f_b`` is the jump of the whole sample radiance, measured by two
+   probe rays just on either side of ``x_s``.
 
-The estimate converges to the derivative of the pixel integral as ``n`` grows
-(the error is ``O(1/n)`` from the jump measured at the samples rather than at
-the edge, and from pairs that straddle two edges). What it does not include:
-edges seen *through* mirrors and glass (reflected or refracted silhouettes and
-shadows), edges of procedural textures (use ``filter_textures=True``, which
-makes them continuous), the horizon of an infinite plane, and the terminator
-of a surface lit at grazing angles (there the jump is zero anyway).
+The estimate converges to the derivative of the pixel integral as ``n`` grows.
+What it does not include: edges along the non-dominant specular branch (the
+faint reflection on glass), a change between refraction and total internal
+reflection (continuous in the physical model; a jump in the classic one),
+edges of procedural textures (use ``filter_textures=True``, which makes them
+continuous), the horizon of an infinite plane, the terminator of a surface lit
+at grazing angles (there the jump is zero anyway), and pairs of samples that
+straddle two edges closer together than the sample spacing.
 """
 
 from __future__ import annotations
@@ -69,13 +89,16 @@ import numpy as np
 
 from . import _vec as V
 from .camera import rays_through
+from .integrator import EPS_REL
 from .intersect import _closest_kind, prepare
+from .materials import fresnel_dielectric, refract
 from .shapes import euler_matrix
 
-BISECTION_STEPS = 14
+BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
+END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
+NEWTON_STEPS = 3  # following an edge to the neighbouring row
+CHUNK = 512  # events solved per step of the (skippable) chunk loop
 MAX_FACES = 6
-
-
 class Prims(NamedTuple):
     """Every primitive as a sphere or a convex planar polygon (component-major).
 
@@ -94,6 +117,10 @@ class Prims(NamedTuple):
     solid: jax.Array  # (Np,) polygon index of the first face of its convex solid, -1: none
     nface: jax.Array  # (Np,) faces of that solid (6 box, 4 tetrahedron, 0 none)
     light: jax.Array  # (3, L)
+    mat: jax.Array  # (Ns + Np,) material of each global id
+    trans: jax.Array  # (M,) transparency
+    refl: jax.Array  # (M,) largest reflectivity component
+    ior: jax.Array  # (M,) refractive index
 
 
 def _unit(x):
@@ -146,6 +173,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
     """The :class:`Prims` of ``scene`` (differentiable) and the id offsets per kind."""
     dt = scene.dtype
     parts = []  # (pp, pn, eo, em, finite)
+    pmat = []  # material of each polygon
     off = {}
     ns = scene.spheres.center.shape[0]
     count = ns
@@ -155,29 +183,33 @@ def build_prims(scene) -> tuple[Prims, dict]:
         N = pl.point.shape[0]
         z = jnp.zeros((N, 4, 3), dt)
         parts.append((pl.point, _unit(pl.normal), z, z, jnp.zeros((N,), bool)))
+        pmat.append(pl.material)
         count += N
     off["quad"] = count
     if scene.quads.corners.shape[0]:
         q = _quad_polys(scene.quads.corners)
         parts.append(q + (jnp.ones((q[0].shape[0],), bool),))
+        pmat.append(scene.quads.material)
         count += q[0].shape[0]
     off["triangle"] = count
     solids = []  # (first polygon index, faces per solid, number of solids)
     if scene.tetrahedra.center.shape[0]:
         solids.append((count - off["plane"] + scene.triangles.vertices.shape[0], 4, scene.tetrahedra.center.shape[0]))
-    T = scene.merged_triangles()[0]
+    T, TM = scene.merged_triangles()
     if T.shape[0]:
         v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
         origins = jnp.stack([v0, v1, v2, v2], 1)
         dirs = jnp.stack([v1 - v0, v2 - v1, v0 - v2, v0 - v2], 1)
         q = _polys_from_edges(origins, dirs, jnp.cross(v1 - v0, v2 - v0))
         parts.append(q + (jnp.ones((T.shape[0],), bool),))
+        pmat.append(TM)
         count += T.shape[0]
     off["box"] = count
     if scene.boxes.lo.shape[0]:
         solids.append((count - off["plane"], 6, scene.boxes.lo.shape[0]))
         q = _quad_polys(_box_faces(scene.boxes))
         parts.append(q + (jnp.ones((q[0].shape[0],), bool),))
+        pmat.append(jnp.repeat(scene.boxes.material, 6))
         count += q[0].shape[0]
     off["total"] = count
     if parts:
@@ -186,6 +218,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
         pp = pn = jnp.zeros((1, 3), dt)
         eo = em = jnp.zeros((1, 4, 3), dt)
         fin = jnp.zeros((1,), bool)
+        pmat = [jnp.zeros((1,), jnp.int32)]
     npoly = fin.shape[0]
     solid = np.full((npoly,), -1, np.int32)
     nface = np.zeros((npoly,), np.int32)
@@ -195,11 +228,16 @@ def build_prims(scene) -> tuple[Prims, dict]:
         nface[idx] = k
     if ns:
         c, r = scene.spheres.center.T, scene.spheres.radius
+        smat = [scene.spheres.material]
     else:
         c, r = jnp.zeros((3, 1), dt), jnp.zeros((1,), dt)
+        smat = []
+    mat = jnp.concatenate([m.astype(jnp.int32) for m in smat + pmat])
+    ms = scene.materials
     L = scene.lights.position.T if scene.lights.position.shape[0] else jnp.zeros((3, 1), dt)
     prims = Prims(c, r, pp.T, pn.T, jnp.transpose(eo, (1, 2, 0)), jnp.transpose(em, (1, 2, 0)), fin,
-                  jnp.asarray(solid), jnp.asarray(nface), L)
+                  jnp.asarray(solid), jnp.asarray(nface), L, mat, ms.transparency,
+                  jnp.max(ms.reflectivity, axis=1), ms.ior)
     return prims, dict(off, ns=ns, solid=solid)
 
 
@@ -217,7 +255,10 @@ def _split(P: Prims, ns, ids):
 
 def miss(P: Prims, ns, ids, o, d):
     """Miss function of primitive ``ids`` for the line ``o + t d``: ``> 0`` when the
-    line misses it, ``< 0`` when it hits, zero on its silhouette."""
+    line misses it, ``< 0`` when it hits, zero on its silhouette; and an integer
+    *feature* naming the smooth piece of it that is active (the polygon edge, the
+    entry and exit planes of a convex solid; 0 for a sphere), which changes at a
+    corner of the silhouette."""
     is_s, si, pi = _split(P, ns, ids)
     oc = P.c[:, si] - o
     x = V.cross(oc, d)
@@ -225,8 +266,9 @@ def miss(P: Prims, ns, ids, o, d):
     n = P.pn[:, pi]
     t = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
     p = o + t[None] * d
-    s = [V.dot(p - P.eo[i][:, pi], P.em[i][:, pi]) for i in range(4)]
-    gp = -jnp.minimum(jnp.minimum(s[0], s[1]), jnp.minimum(s[2], s[3]))
+    s = jnp.stack([V.dot(p - P.eo[i][:, pi], P.em[i][:, pi]) for i in range(4)])
+    gp = -jnp.min(s, 0)
+    feat = jnp.argmin(s, 0).astype(jnp.int32)
     gp = jnp.where(P.finite[pi], gp, -1.0)
     if P.solid.shape[0] and MAX_FACES:
         # A face of a convex solid (box, tetrahedron): the solid's own miss function,
@@ -235,6 +277,7 @@ def miss(P: Prims, ns, ids, o, d):
         first = jnp.maximum(P.solid[pi], 0)
         big = jnp.asarray(1e30, o.dtype)
         tn, tf = -big, big
+        jn = jf = jnp.zeros_like(feat)
         for j in range(MAX_FACES):
             fj = jnp.clip(first + j, 0, P.finite.shape[0] - 1)
             use = j < P.nface[pi]
@@ -245,10 +288,14 @@ def miss(P: Prims, ns, ids, o, d):
             par = jnp.abs(den) <= 1e-30
             enter = jnp.where(par, jnp.where(num >= 0, -big, big), jnp.where(den < 0, t, -big))
             leave = jnp.where(par, jnp.where(num >= 0, big, -big), jnp.where(den > 0, t, big))
+            jn = jnp.where(use & (enter > tn), j, jn)
+            jf = jnp.where(use & (leave < tf), j, jf)
             tn = jnp.where(use, jnp.maximum(tn, enter), tn)
             tf = jnp.where(use, jnp.minimum(tf, leave), tf)
-        gp = jnp.where(P.solid[pi] >= 0, tn - tf, gp)
-    return jnp.where(is_s, gs, gp)
+        solid = P.solid[pi] >= 0
+        gp = jnp.where(solid, tn - tf, gp)
+        feat = jnp.where(solid, 8 * jn + jf, feat)
+    return jnp.where(is_s, gs, gp), jnp.where(is_s, 0, feat)
 
 
 def first_t(P: Prims, ns, ids, o, d):
@@ -265,20 +312,59 @@ def first_t(P: Prims, ns, ids, o, d):
     return jnp.where(is_s, ts, tp)
 
 
+
+
+def _step(P: Prims, ns, ids, want_t, o, d):
+    """The specular child of rays ``o, d (3, E)`` at their hit on primitive ``ids``:
+    refracted where ``want_t`` (unless totally internally reflected), else
+    reflected, from the same offset origins as the renderer's. Returns the child's
+    origin and direction and whether it was refracted."""
+    is_s, si, pi = _split(P, ns, ids)
+    t = first_t(P, ns, ids, o, d)
+    p = o + t[None] * d
+    n = V.vsel(is_s, V.normalize(p - P.c[:, si]), P.pn[:, pi])
+    cos_d = V.dot(d, n)
+    front = cos_d < 0
+    n_s = V.vsel(front, n, -n)
+    cos_i = jnp.abs(cos_d)
+    ior = P.ior[P.mat[jnp.clip(ids, 0, P.mat.shape[0] - 1)]]
+    eta = jnp.where(front, V.safe_div(1.0, ior), ior)
+    _, cos_t, tir = fresnel_dielectric(cos_i, eta)
+    refr = want_t & ~tir
+    eps = EPS_REL * (1.0 + jnp.max(jnp.abs(p), 0))
+    o2 = V.vsel(refr, p - eps[None] * n_s, p + eps[None] * n_s)
+    d2 = V.vsel(refr, refract(d, n_s, eta, cos_t), V.reflect(d, n_s))
+    return o2, d2, refr
+
+
 MISS, DEPTH, SHADOW = 0, 1, 2
 
 
 class Events(NamedTuple):
     typ: jax.Array  # (E,) MISS, DEPTH or SHADOW
+    level: jax.Array  # (E,) chain level of the edge (0: seen directly)
+    chain: jax.Array  # (D, E) primitives of the shared chain (levels < level are used)
+    refr: jax.Array  # (D, E) the chain refracts (else reflects) at that level
     p1: jax.Array  # (E,) primitive missed (MISS), A (DEPTH), receiver (SHADOW)
     p2: jax.Array  # (E,) B (DEPTH), occluder (SHADOW)
     light: jax.Array  # (E,) light index (SHADOW)
     sign: jax.Array  # (E,) +-1: g = sign * G is <= 0 on the first sample's side
 
 
-def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height):
-    """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``)."""
+def _chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
+    """The ray at each event's chain level, for image positions ``xy (2, E)``."""
     o, d = rays_through(scene.camera, xy, width, height)
+    for lv in range(ev.chain.shape[0] - 1):
+        o2, d2, _ = _step(P, ns, ev.chain[lv], ev.refr[lv], o, d)
+        go = lv < ev.level
+        o, d = V.vsel(go, o2, o), V.vsel(go, d2, d)
+    return o, d
+
+
+def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False):
+    """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``), and
+    with ``feature=True`` also the feature of :func:`miss` (0 for depth crossings)."""
+    o, d = _chain_ray(scene, P, ns, ev, xy, width, height)
     ta = first_t(P, ns, ev.p1, o, d)
     tb = first_t(P, ns, ev.p2, o, d)
     shadow = ev.typ == SHADOW
@@ -286,8 +372,10 @@ def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height):
     L = P.light[:, jnp.clip(ev.light, 0, P.light.shape[1] - 1)]
     o2 = V.vsel(shadow, p, o)
     d2 = V.vsel(shadow, V.normalize(L - p), d)
-    m = miss(P, ns, jnp.where(ev.typ == MISS, ev.p1, ev.p2), o2, d2)
-    return jnp.where(ev.typ == DEPTH, ta - tb, m)
+    m, f = miss(P, ns, jnp.where(ev.typ == MISS, ev.p1, ev.p2), o2, d2)
+    depth = ev.typ == DEPTH
+    G = jnp.where(depth, ta - tb, m)
+    return (G, jnp.where(depth, 0, f)) if feature else G
 
 
 # ----------------------------------------------------------------------------
@@ -345,56 +433,92 @@ def id_offsets(scene) -> dict:
     return off
 
 
-def primary_ids(scene, xy, width, height):
-    """Global id (-1: background) of the first primitive seen through image
-    positions ``xy (2, M)`` (no gradient)."""
-    scene = jax.lax.stop_gradient(scene)
+class Records(NamedTuple):
+    """What the specular chain of each camera ray meets (no gradient), ``D`` levels."""
+
+    hit: jax.Array  # (D, M) primitive at each level; -1 background, -2 the chain has ended
+    refr: jax.Array  # (D, M) the chain refracts (else reflects) at that hit
+    first: jax.Array  # (D, L, M) first occluder between the hit and each light (-1: none; see object_key)
+    last: jax.Array  # (D, L, M) last occluder
+
+
+def object_key(P: Prims, ns, g):
+    """The object of global primitive ids ``g`` (-1 stays -1): the first face of a
+    convex solid for each of its faces, else the primitive itself."""
+    pi = jnp.clip(g - ns, 0, P.solid.shape[0] - 1)
+    solid = (g >= ns) & (P.solid[pi] >= 0)
+    return jnp.where(solid, ns + P.solid[pi], g)
+
+
+def _occluders(scene, kinds, off, p, hit):
+    """First and last occluder ``(L, M)`` on the segments from points ``p (3, M)``
+    to each light (-1: none, or ``~hit``)."""
+    eps = 1e-4 * (1.0 + jnp.max(jnp.abs(p), 0))
+
+    def one(Lpos):
+        Lp = Lpos[:, None]
+        Lv = Lp - p
+        dist = V.norm(Lv)
+        ld = V.normalize(Lv)
+        f, _ = _search(scene, kinds, off, p + eps[None] * ld, ld, dist - 2 * eps)
+        la, _ = _search(scene, kinds, off, jnp.broadcast_to(Lp, p.shape), -ld, dist - 2 * eps)
+        return jnp.where(hit, f, -1), jnp.where(hit, la, -1)
+
+    return jax.lax.map(one, scene.lights.position)
+
+
+def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
+    """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
+    ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``."""
     o, d = rays_through(scene.camera, xy, width, height)
-    return _search(scene, prepare(scene), id_offsets(scene), o, d)[0]
+    M = xy.shape[1]
+    ns = off["ns"]
+    alive = jnp.ones((M,), bool)
+    out = []
+    for lv in range(depth):
+        gid, t = _search(scene, kinds, off, o, d)
+        gid = jnp.where(alive, gid, -2)
+        hit = gid >= 0
+        p = o + jnp.where(hit, t, 0.0)[None] * d
+        if scene.lights.position.shape[0]:
+            # Occluders as objects: a convex solid is its first face, whichever faces
+            # the shadow segment crosses.
+            first, last = (object_key(P, ns, x) for x in _occluders(scene, kinds, off, p, hit))
+        else:
+            first = last = jnp.zeros((0, M), jnp.int32)
+        mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]
+        T, R = P.trans[mat], P.refl[mat]
+        cont = hit & ((T > 0) | (R > 0))
+        refr = jnp.zeros((M,), bool)
+        if lv < depth - 1:
+            o, d, refr = _step(P, ns, gid, (T > 0) & (T >= R), o, d)
+        out.append((gid, cont & refr, first, last))
+        alive = cont
+    return Records(*(jnp.stack(x) for x in zip(*out)))
 
 
-def sample_records(scene, width, height, n):
-    """Records of the ``(height n) x (width n)`` sample grid (no gradient):
-    primary primitive ``(S,)`` and, per light, first and last occluder ``(L, S)``,
-    plus the sample positions ``(2, S)`` in pixels."""
-    scene = jax.lax.stop_gradient(scene)
-    kinds = prepare(scene)
-    off = id_offsets(scene)
-    Gw, Gh = width * n, height * n
-    dt = scene.dtype
-    jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
-    xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
-    o, d = rays_through(scene.camera, xy, width, height)
-    prim, t = _search(scene, kinds, off, o, d)
-    hit = prim >= 0
-    p = o + jnp.where(hit, t, 0.0)[None] * d
-    L = scene.lights.position.shape[0]
-    if L:
-        eps = 1e-4 * (1.0 + jnp.max(jnp.abs(p), 0))
+def _rec_equal(r1: Records, r2: Records):
+    """Records ``(.., M)`` equal in every field, ``(M,)``."""
+    eq = jnp.all(r1.hit == r2.hit, 0) & jnp.all(r1.refr == r2.refr, 0)
+    if r1.first.shape[1]:
+        eq = eq & jnp.all(r1.first == r2.first, (0, 1)) & jnp.all(r1.last == r2.last, (0, 1))
+    return eq
 
-        def occluders(Lpos):
-            Lp = Lpos[:, None]
-            Lv = Lp - p
-            dist = V.norm(Lv)
-            ld = V.normalize(Lv)
-            f, _ = _search(scene, kinds, off, p + eps[None] * ld, ld, dist - 2 * eps)
-            la, _ = _search(scene, kinds, off, jnp.broadcast_to(Lp, p.shape), -ld, dist - 2 * eps)
-            return jnp.where(hit, f, -1), jnp.where(hit, la, -1)
 
-        first, last = jax.lax.map(occluders, scene.lights.position)
-    else:
-        first = last = jnp.zeros((0, prim.shape[0]), jnp.int32)
-    return xy, prim, first, last
+def _rec_slice(r: Records, s: slice) -> Records:
+    return Records(*(x[..., s] for x in r))
 
 
 @dataclasses.dataclass(frozen=True)
 class EdgeOptions:
-    """Static options of the boundary term: ``samples`` per pixel side (``n``) and
+    """Static options of the boundary term: ``samples`` per pixel side (``n``),
     ``budget``, the most sample pairs with an edge between them (``None``: a
-    quarter of all samples)."""
+    quarter of all samples, at least 4096), and ``depth``, the chain levels
+    followed (the render's ``max_depth + 1``)."""
 
     samples: int = 4
     budget: int | None = None
+    depth: int = 1
 
 
 def _pairs(Gw, Gh):
@@ -408,54 +532,115 @@ def _pairs(Gw, Gh):
     return a, b, horiz
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_grid, _debug=False):
+def _at_level(x, level):
+    """``x (D, E)`` at each event's ``level (E,)``."""
+    return jnp.take_along_axis(x, level[None], 0)[0]
+
+
+def _pieces(p0, p1, width, height):
+    """Split the segments ``p0 -> p1 (2, E)`` at pixel boundaries (at most one per
+    axis): pixel ids ``(3, E)`` and length fractions ``(3, E)`` of the three pieces."""
+
+    def cross(c0, c1):
+        has = jnp.floor(c0) != jnp.floor(c1)
+        tau = V.safe_div(jnp.floor(jnp.maximum(c0, c1)) - c0, c1 - c0)
+        return jnp.where(has, jnp.clip(tau, 0.0, 1.0), 1.0)
+
+    tx, ty = cross(p0[0], p1[0]), cross(p0[1], p1[1])
+    taus = [jnp.zeros_like(tx), jnp.minimum(tx, ty), jnp.maximum(tx, ty), jnp.ones_like(tx)]
+    pix, wts = [], []
+    for j in range(3):
+        mid = p0 + (0.5 * (taus[j] + taus[j + 1]))[None] * (p1 - p0)
+        px = jnp.clip(jnp.floor(mid[0]).astype(jnp.int32), 0, width - 1)
+        py = jnp.clip(jnp.floor(mid[1]).astype(jnp.int32), 0, height - 1)
+        pix.append(py * width + px)
+        wts.append(taus[j + 1] - taus[j])
+    return jnp.stack(pix), jnp.stack(wts)
+
+
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid, _debug=False):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
     whose derivative with respect to ``scene`` is the edge contribution, and the
     number of sample pairs with an edge between them.
 
-    ``radiance_at(xy (2, M)) -> (M, 3)``: radiance of camera rays through image
-    positions ``xy``; ``lights_at(xy) -> (L, M, 3)``: each light's direct term at
-    their first hit; ``f_grid (S, 3)``: the radiance of the grid samples. All
-    are treated as constants. The jump ``f_minus - f_plus`` is measured just on
-    either side of the edge point (``1/256`` of the sample spacing away for
-    visibility edges, 0.03 pixel for shadow edges), where the probes see the same
-    primitives as the two samples (else at the samples).
+    ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
+    through image positions ``xy`` (with ``light``: that light's contribution
+    alone); ``f_grid (S, 3)``: the radiance of the grid samples. Both are
+    treated as constants. The jump ``f_minus - f_plus`` is measured by probe
+    rays just on either side of the edge point (``1/256`` of the sample spacing
+    away for visibility edges, 0.03 pixel for shadow edges), where the probes
+    see the same as the two samples (else, for visibility edges, at the samples).
     """
     n = eo.samples
+    D = eo.depth
     Gw, Gh = width * n, height * n
     S = Gw * Gh
-    xy, prim, first, last = sample_records(scene, width, height, n)
-    f_grid = jax.lax.stop_gradient(f_grid)
-    L = first.shape[0]
-    a, b, horiz = _pairs(Gw, Gh)
-    P, off = build_prims(scene)
+    h = 1.0 / n
+    sg = jax.lax.stop_gradient(scene)
+    kinds = prepare(sg)
+    off = id_offsets(sg)
+    P, offp = build_prims(scene)
     P_sg = jax.lax.stop_gradient(P)
-    ns = off["ns"]
-    # Object keys: the faces of one convex solid are one occluder.
-    key = jnp.asarray(np.concatenate([np.arange(ns), ns + np.where(off["solid"] >= 0, off["solid"],
-                                                                   np.arange(off["solid"].shape[0]))]))
+    ns = offp["ns"]
 
+    def rec_at(x):
+        return records(sg, kinds, off, P_sg, x, width, height, D)
+
+    dt = scene.dtype
+    jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
+    xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
+    R = rec_at(xy)
+    f_grid = jax.lax.stop_gradient(f_grid)
+    L = R.first.shape[1]
+    a, b, horiz = _pairs(Gw, Gh)
     def okey(g):
-        return jnp.where(g >= 0, key[jnp.clip(g, 0, key.shape[0] - 1)], -1)
+        return object_key(P_sg, ns, g)
 
-    pa, pb = prim[a], prim[b]
-    act = [pa != pb]
-    same = (pa == pb) & (pa >= 0)
-    # Shadow slots: light k, candidate occluder j (last / first occluder of either
-    # sample's shadow segment), each distinct occluding object once.
+    ha, hb = R.hit[:, a], R.hit[:, b]
+    same_r = R.refr[:, a] == R.refr[:, b]
+    # Visibility: the first chain level whose hits differ, after a common prefix.
+    pre = jnp.ones(a.shape, bool)
+    vis_act = jnp.zeros(a.shape, bool)
+    lv = jnp.zeros(a.shape, jnp.int32)
+    for lvl in range(D):
+        dh = ha[lvl] != hb[lvl]
+        new = pre & dh
+        vis_act = vis_act | new
+        lv = jnp.where(new, lvl, lv)
+        pre = pre & ~dh & same_r[lvl]
+    act = [vis_act]
+    # Shadows: per light, the first level (same hit, common prefix) whose shadow
+    # records differ; slots for light k, candidate occluder j (last / first occluder
+    # of either sample's shadow segment), each distinct occluding object once.
+    ls = []
     for k in range(L):
-        differ = same & ((first[k, a] != first[k, b]) | (last[k, a] != last[k, b]))
-        cands = [last[k, a], first[k, a], last[k, b], first[k, b]]
+        pre = jnp.ones(a.shape, bool)
+        found = jnp.zeros(a.shape, bool)
+        lk = jnp.zeros(a.shape, jnp.int32)
+        for lvl in range(D):
+            eqh = ha[lvl] == hb[lvl]
+            dif = pre & eqh & (ha[lvl] >= 0) & ~found & ((R.first[lvl, k, a] != R.first[lvl, k, b])
+                                                        | (R.last[lvl, k, a] != R.last[lvl, k, b]))
+            lk = jnp.where(dif, lvl, lk)
+            found = found | dif
+            pre = pre & eqh & same_r[lvl]
+        ls.append(lk)
+        recv = okey(_at_level(ha, lk))
+        cands = [_at_level(R.last[:, k, a], lk), _at_level(R.first[:, k, a], lk),
+                 _at_level(R.last[:, k, b], lk), _at_level(R.first[:, k, b], lk)]
         keys = [okey(c) for c in cands]
         for j in range(4):
-            new = differ & (cands[j] >= 0) & (keys[j] != okey(pa))
+            new = found & (cands[j] >= 0) & (keys[j] != recv)
             for i in range(j):
                 new = new & (keys[j] != keys[i])
             act.append(new)
     nslot = 1 + 4 * L
     act = jnp.stack(act, 1).ravel()  # (npairs * nslot,) pair-major
-    K = eo.budget if eo.budget is not None else max(4096, S // 4)
-    K = min(K, act.shape[0])
+    budget = eo.budget if eo.budget is not None else max(4096, S // 4)
+    budget = min(budget, act.shape[0])
+    C = min(CHUNK, budget)
+    nc = -(-budget // C)
+    K = nc * C
     count = jnp.sum(act)
     (flat,) = jnp.nonzero(act, size=K, fill_value=0)
     flat = flat.astype(jnp.int32)
@@ -463,120 +648,205 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, lights_at, f_g
     pair = flat // nslot
     slot = flat % nslot
     ea, eb = a[pair], b[pair]
-    eh = horiz[pair]
-    xa, xb = xy[:, ea], xy[:, eb]
-
-    sg = jax.lax.stop_gradient(scene)
-    A, B = prim[ea], prim[eb]
+    vis = slot == 0
     k_ev = jnp.maximum(slot - 1, 0) // 4
     j_ev = jnp.maximum(slot - 1, 0) % 4
-    zeros = jnp.zeros_like(A)
-    E = A.shape[0]
     if L:
-        occ = jnp.where(j_ev == 0, last[k_ev, ea], jnp.where(j_ev == 1, first[k_ev, ea],
-                                                             jnp.where(j_ev == 2, last[k_ev, eb], first[k_ev, eb])))
+        level = jnp.where(vis, lv[pair], jnp.stack(ls)[k_ev, pair])
     else:
-        occ = zeros
-
-    def G(ev, x):
-        return edge_value(sg, P_sg, ns, ev, x, width, height)
-
-    def cat(*evs):
-        return Events(*(jnp.concatenate(f) for f in zip(*evs)))
-
-    # One batched evaluation (one compiled copy of G) classifies every event:
-    # primary visibility (which edge function separates the two samples?) and
-    # shadows (is the occluder hit by one shadow segment and missed by the other?).
-    ev_d = Events(zeros + DEPTH, A, B, zeros, zeros)
-    ev_s = Events(zeros + SHADOW, A, occ, k_ev, zeros)
-    evs = [Events(zeros + MISS, A, B, zeros, zeros), Events(zeros + MISS, B, A, zeros, zeros), ev_d, ev_d,
-           ev_s, ev_s]
-    vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), E)
-    mAb, mBa = vals[0], vals[1]
-    case1 = (A >= 0) & (mAb > 0)
-    case2 = ~case1 & (B >= 0) & (mBa > 0)
-    # Depth crossings: t_A - t_B changes sign between the samples. Where two
-    # surfaces cross, the nearer one is seen (t_A < t_B at a); at a crease of a
-    # convex solid, the face seen is the one whose plane is hit *last*.
-    up = (vals[2] <= 0) & (vals[3] >= 0)
-    down = (vals[2] >= 0) & (vals[3] <= 0)
-    case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
-    typ_v = jnp.where(case1 | case2, MISS, DEPTH)
-    p1_v = jnp.where(case2, B, A)
-    sign_v = jnp.where(case2 | (case3 & ~up), -1, 1)
-    ok_v = case1 | case2 | case3
-    ma, mb = vals[4], vals[5]
-    ok_s = (occ >= 0) & ((ma <= 0) != (mb <= 0))
-    sgn_s = jnp.where(ma <= 0, 1, -1)
-
-    vis = slot == 0
-    ev = Events(jnp.where(vis, typ_v, SHADOW), jnp.where(vis, p1_v, A), jnp.where(vis, B, occ), k_ev,
-                jnp.where(vis, sign_v, sgn_s))
-    sgn = ev.sign.astype(xy.dtype)
-    ok = live & jnp.where(vis, ok_v, ok_s)
-    ev2 = cat(ev, ev)
-    sgn2 = jnp.concatenate([sgn, sgn])
-
-    def g_sg(x):
-        return sgn2 * G(ev2, x)
-
-    # Bisection on the doubled batch (two copies of each bracket; the second copy
-    # is differentiated along y below).
-    xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
-
-    def bisect(_, lohi):
-        lo, hi = lohi
-        mid = 0.5 * (lo + hi)
-        neg = g_sg(xa2 + mid[None] * (xb2 - xa2)) <= 0
-        return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
-
-    lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn2), jnp.ones_like(sgn2)))
-    xs2 = xa2 + (0.5 * (lo + hi))[None] * (xb2 - xa2)
-    # d g / d x and d g / d y in one forward-mode pass over the doubled batch.
-    tang = jnp.concatenate([jnp.zeros_like(xa).at[0].set(1.0), jnp.zeros_like(xa).at[1].set(1.0)], 1)
-    _, gxy = jax.jvp(g_sg, (xs2,), (tang,))
-    gx, gy = gxy[:E], gxy[E:]
-    xs = xs2[:, :E]
-    den = jnp.abs(gx) + jnp.abs(gy)
-    ok = ok & (den > 0) & jnp.isfinite(den)
-    gdir = jnp.where(eh, gx, gy)
-    # The jump, measured on either side of the edge point.
-    # Probes sit 1/256 of the sample spacing from a visibility edge (camera rays are
-    # exact there). The renderer offsets shadow rays from the surface (by 1e-4 of
-    # the scene's scale), which moves its shadow edges by ~1e-3 pixel; shadow
-    # probes keep 0.03 pixel (at most 0.45 of the spacing) from the edge so that
-    # they fall on the two sides of the renderer's own shadow edge.
-    frac = jnp.where(vis, 1.0 / 256.0, jnp.maximum(1.0 / 256.0, jnp.minimum(0.45, 0.03 * n)))
-    u = (xb - xa) * frac[None]
-    probes = jax.lax.stop_gradient(jnp.concatenate([xs - u, xs + u], 1))
-    pid = primary_ids(sg, probes, width, height)
-    same_m = pid[:E] == jnp.where(vis, A, A)
-    same_p = pid[E:] == jnp.where(vis, B, A)
-    fr = jax.lax.stop_gradient(radiance_at(probes))
-    df_vis = jnp.where((same_m & same_p)[:, None], fr[:E] - fr[E:], f_grid[ea] - f_grid[eb])  # (E, 3)
+        level = lv[pair]
+    chain, refr = R.hit[:, ea], R.refr[:, ea]
+    A = _at_level(chain, level)
+    B = R.hit[level, eb]
     if L:
-        fl = jax.lax.stop_gradient(lights_at(probes))  # (L, 2E, 3)
-        kk = jnp.concatenate([k_ev, k_ev])
-        fl = jnp.take_along_axis(fl, kk[None, :, None], 0)[0]
-        df_sh = jnp.where((same_m & same_p)[:, None], fl[:E] - fl[E:], 0.0)
-        df = jnp.where(vis[:, None], df_vis, df_sh)
+        fa, la = R.first[level, k_ev, ea], R.last[level, k_ev, ea]
+        fb, lb = R.first[level, k_ev, eb], R.last[level, k_ev, eb]
+        occ = jnp.where(j_ev == 0, la, jnp.where(j_ev == 1, fa, jnp.where(j_ev == 2, lb, fb)))
     else:
-        df = df_vis
-    if _debug:  # intermediate values, for tests and diagnosis
-        return dict(ok=ok, vis=vis, ev=ev, xs=xs, den=den, gdir=gdir, df=df, count=count)
-    coef = -df * (jnp.sign(gdir) * V.safe_div(1.0, den) / n)[:, None]
-    coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
-    coef = jax.lax.stop_gradient(coef)
-    xs = jax.lax.stop_gradient(xs)
+        fa = la = fb = lb = occ = jnp.zeros_like(A)
+    inputs = {"live": live, "vis": vis, "level": level, "chain": chain, "refr": refr, "A": A, "B": B, "occ": occ,
+              "k": k_ev, "fa": fa, "la": la, "fb": fb, "lb": lb, "xa": xy[:, ea], "xb": xy[:, eb], "eh": horiz[pair],
+              "fga": f_grid[ea].T, "fgb": f_grid[eb].T}
 
+    def solve(c):
+        """Everything about one chunk of ``C`` events that needs no gradient."""
+        zeros = jnp.zeros_like(c["A"])
+        A, B, xa, xb, eh, vis = c["A"], c["B"], c["xa"], c["xb"], c["eh"], c["vis"]
+
+        def mk(typ, p1, p2, sign):
+            return Events(typ, c["level"], c["chain"], c["refr"], p1, p2, c["k"], sign)
+
+        def cat(*evs):
+            return Events(*(jnp.concatenate(f, -1) for f in zip(*evs)))
+
+        def G(ev, x, feature=False):
+            return edge_value(sg, P_sg, ns, ev, x, width, height, feature)
+
+        # One batched evaluation (one compiled copy of G) classifies every event:
+        # visibility (which edge function separates the two samples?) and shadows
+        # (is the occluder hit by one shadow segment and missed by the other?).
+        ev_d = mk(zeros + DEPTH, A, B, zeros)
+        ev_s = mk(zeros + SHADOW, A, c["occ"], zeros)
+        evs = [mk(zeros + MISS, A, B, zeros), mk(zeros + MISS, B, A, zeros), ev_d, ev_d, ev_s, ev_s]
+        vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), -1)
+        mAb, mBa = vals[0], vals[1]
+        case1 = (A >= 0) & (mAb > 0)
+        case2 = ~case1 & (B >= 0) & (mBa > 0)
+        # Depth crossings: t_A - t_B changes sign between the samples (two surfaces
+        # crossing, or a crease of a convex solid).
+        up = (vals[2] <= 0) & (vals[3] >= 0)
+        down = (vals[2] >= 0) & (vals[3] <= 0)
+        case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
+        typ_v = jnp.where(case1 | case2, MISS, DEPTH)
+        ok_v = case1 | case2 | case3
+        ma, mb = vals[4], vals[5]
+        ok_s = (c["occ"] >= 0) & ((ma <= 0) != (mb <= 0))
+        ev = mk(jnp.where(vis, typ_v, SHADOW), jnp.where(vis, jnp.where(case2, B, A), A),
+                jnp.where(vis, B, c["occ"]),
+                jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)))
+        sgn = ev.sign.astype(dt)
+        ok = c["live"] & jnp.where(vis, ok_v, ok_s)
+        ev2 = cat(ev, ev)
+        sgn2 = jnp.concatenate([sgn, sgn])
+
+        def g2(x):
+            return sgn2 * G(ev2, x)
+
+        # Bisection on the doubled batch (both copies of each bracket; the second is
+        # differentiated along y below, and below the two copies follow the edge to
+        # either side).
+        xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
+
+        def bisect(_, lohi):
+            lo, hi = lohi
+            mid = 0.5 * (lo + hi)
+            neg = g2(xa2 + mid[None] * (xb2 - xa2)) <= 0
+            return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn2), jnp.ones_like(sgn2)))
+        xs2 = xa2 + (0.5 * (lo + hi))[None] * (xb2 - xa2)
+        tang = jnp.concatenate([jnp.zeros_like(xa).at[0].set(1.0), jnp.zeros_like(xa).at[1].set(1.0)], 1)
+        _, gxy = jax.jvp(g2, (xs2,), (tang,))
+        E = A.shape[0]
+        gx, gy = gxy[:E], gxy[E:]
+        xs = xs2[:, :E]
+        den = jnp.abs(gx) + jnp.abs(gy)
+        ok = ok & (den > 0) & jnp.isfinite(den)
+        ga = jnp.where(eh, gx, gy)  # along the pair
+        gc = jnp.where(eh, gy, gx)  # across
+        # The jump, measured on either side of the edge point. Probes sit 1/256 of the
+        # sample spacing from a visibility edge (camera rays are exact there). The
+        # renderer offsets shadow rays from the surface (by 1e-4 of the scene's scale),
+        # which moves its shadow edges by ~1e-3 pixel; shadow probes keep 0.03 pixel
+        # (at most 0.45 of the spacing) from the edge, on both sides of that edge.
+        frac = jnp.where(vis, 1.0 / 256.0, jnp.maximum(1.0 / 256.0, jnp.minimum(0.45, 0.03 * n)))
+        u = (xb - xa) * frac[None]
+        probes = jnp.concatenate([xs - u, xs + u], 1)
+
+        # The piece of edge this crossing stands for: up to the neighbouring rows
+        # (columns) on either side, cut where the edge ends or what lies on either
+        # side of it changes (records at the edge, beside it, differ from the probes').
+        # One loop: step 0 takes the records beside the edge point itself (the
+        # probes') and its feature, step 1 looks a whole row (column) away on either
+        # side, the remaining steps bisect for the end where that failed.
+        along = jnp.stack([eh, ~eh]).astype(dt)
+        across = 1.0 - along
+        tdir = across - V.safe_div(gc, ga)[None] * along  # the edge's direction per unit across
+
+        def dup(x):
+            return jnp.concatenate([x, x], -1)
+
+        along2, tdir2, xs2b, u2, ga2 = (dup(x) for x in (along, tdir, xs, u, ga))
+        sided = jnp.concatenate([-jnp.ones_like(sgn), jnp.ones_like(sgn)]) * h
+
+        def on_edge(x):
+            """Follow the edge from ``x`` along the pair direction (chord-Newton steps
+            in one loop); returns the last point evaluated, whether ``g`` vanishes
+            there, and its feature."""
+
+            def newton(_, st):
+                x, _, _, _ = st
+                gv, f = G(ev2, x, feature=True)
+                gv = sgn2 * gv
+                return x - V.safe_div(gv, ga2)[None] * along2, x, jnp.abs(gv) <= 0.05 * h * jnp.abs(ga2), f
+
+            _, x1, conv, f = jax.lax.fori_loop(0, NEWTON_STEPS + 1, newton,
+                                               (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32)))
+            return x1, conv, f
+
+        def end_step(i, st):
+            lo, hi, full, ref, feat = st
+            mid = jnp.where(i == 0, 0.0, jnp.where(i == 1, hi, 0.5 * (lo + hi)))
+            x, conv, f = on_edge(xs2b + mid[None] * tdir2)
+            r = rec_at(jnp.concatenate([x - u2, x + u2], 1))  # minus side, plus side (each 2E)
+            ref = jax.tree_util.tree_map(lambda new, old: jnp.where(i == 0, new, old), r, ref)
+            feat = jnp.where(i == 0, f, feat)
+            v = conv & (f == feat) & _rec_equal(_rec_slice(r, slice(0, 2 * E)), _rec_slice(ref, slice(0, 2 * E))) \
+                & _rec_equal(_rec_slice(r, slice(2 * E, 4 * E)), _rec_slice(ref, slice(2 * E, 4 * E)))
+            full = jnp.where(i == 1, v, full)
+            lo = jnp.where((i > 1) & v, mid, lo)
+            hi = jnp.where((i > 1) & ~v, mid, hi)
+            return lo, hi, full, ref, feat
+
+        ref0 = Records(jnp.zeros((D, 4 * E), jnp.int32), jnp.zeros((D, 4 * E), bool),
+                       jnp.zeros((D, L, 4 * E), jnp.int32), jnp.zeros((D, L, 4 * E), jnp.int32))
+        lo, hi, full, ref, _ = jax.lax.fori_loop(
+            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, jnp.zeros(sided.shape, bool), ref0,
+                                         jnp.zeros(sided.shape, jnp.int32)))
+        r_m, r_p = _rec_slice(ref, slice(0, E)), _rec_slice(ref, slice(2 * E, 3 * E))
+        lvl = c["level"]
+        pre_m = pre_p = jnp.ones_like(ok)
+        for q in range(D):
+            before = q < lvl
+            pre_m = pre_m & (~before | ((r_m.hit[q] == c["chain"][q]) & (r_m.refr[q] == c["refr"][q])))
+            pre_p = pre_p & (~before | ((r_p.hit[q] == c["chain"][q]) & (r_p.refr[q] == c["refr"][q])))
+        hm, hp = _at_level(r_m.hit, lvl), _at_level(r_p.hit, lvl)
+        jump_ok = pre_m & pre_p & (hm == A) & jnp.where(vis, hp == B, hp == A)
+        if L:
+            ar = jnp.arange(E)
+            sh = ((r_m.first[lvl, c["k"], ar] == c["fa"]) & (r_m.last[lvl, c["k"], ar] == c["la"])
+                  & (r_p.first[lvl, c["k"], ar] == c["fb"]) & (r_p.last[lvl, c["k"], ar] == c["lb"]))
+            jump_ok = jump_ok & (vis | sh)
+        # A shadow edge's jump is that of its light's contribution alone; one compiled
+        # trace, mapped over the lights and then everything (index L).
+        fl = jax.lax.map(lambda k: radiance_at(probes, k), jnp.arange(L + 1))  # (L + 1, 2E, 3)
+        which = jnp.where(vis, L, c["k"])
+        fr = jnp.take_along_axis(fl, jnp.concatenate([which, which])[None, :, None], 0)[0]
+        df = jnp.where(jump_ok[:, None], fr[:E] - fr[E:], jnp.where(vis[:, None], (c["fga"] - c["fgb"]).T, 0.0))
+
+        ext = jnp.where(full, 0.5 * h, jnp.abs(0.5 * (lo + hi)))
+        e_m, e_p = ext[:E], ext[E:]
+        pix, wts = _pieces(xs - e_m[None] * tdir, xs + e_p[None] * tdir, width, height)
+        coef = -df * (jnp.sign(ga) * V.safe_div(1.0, den) * (e_m + e_p))[:, None]
+        coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
+        out = {"typ": ev.typ, "p1": ev.p1, "p2": ev.p2, "sign": ev.sign, "xs": xs, "coef": coef.T, "pix": pix,
+               "wts": wts, "ok": ok}
+        if _debug:
+            out.update(df=df.T, den=den, ext=jnp.stack([e_m, e_p]), jump_ok=jump_ok,
+                       full=jnp.stack([full[:E], full[E:]]))
+        return out
+
+    def chunked(x):  # (..., K) -> (nc, ..., C)
+        return jnp.moveaxis(x.reshape(x.shape[:-1] + (nc, C)), -2, 0)
+
+    def solve_or_skip(c):
+        shapes = jax.eval_shape(solve, c)
+        return jax.lax.cond(jnp.any(c["live"]), solve,
+                            lambda _: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), c)
+
+    res = jax.lax.map(solve_or_skip, {k: chunked(jax.lax.stop_gradient(v)) for k, v in inputs.items()})
+    res = {k: jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (K,)) for k, v in res.items()}
+    if _debug:
+        return dict(res, vis=vis, level=level, count=count, live=live, chain=chain, refr=refr, k=k_ev)
+    ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
-    g = sgn * edge_value(scene, P, ns, ev, xs, width, height)
-    g = jnp.where(ok, g, 0.0)
-    term = coef * g[:, None]  # (E, 3)
-    px = jnp.clip(jnp.floor(xs[0]).astype(jnp.int32), 0, width - 1)
-    py = jnp.clip(jnp.floor(xs[1]).astype(jnp.int32), 0, height - 1)
-    img = jnp.zeros((height * width, 3), term.dtype).at[py * width + px].add(term)
-    img = eqx.error_if(img, count > K, f"edge_gradients: more sample pairs straddle an edge than "
-                                       f"edge_budget={K}; pass a larger edge_budget to render")
+    g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)
+    g = jnp.where(res["ok"], g, 0.0)
+    term = res["coef"].T * g[:, None]  # (K, 3)
+    img = jnp.zeros((height * width, 3), term.dtype)
+    for j in range(3):
+        img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])
+    img = eqx.error_if(img, count > budget, f"edge_gradients: more sample pairs straddle an edge than "
+                                            f"edge_budget={budget}; pass a larger edge_budget to render")
     img = img - jax.lax.stop_gradient(img)
     return img.reshape(height, width, 3), count

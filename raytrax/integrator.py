@@ -424,38 +424,22 @@ def _spread(scene: Scene, opts: RenderOptions, n: int):
     return 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / opts.settings.height / n
 
 
-def _light_terms(scene: Scene, opts: RenderOptions, xy, n: int):
-    """Each light's direct contribution ``(L, M, 3)`` at the first hit of the camera
-    rays through image positions ``xy (2, M)`` (no gradient; for shadow edges)."""
-    st = opts.settings
-    scene = jax.lax.stop_gradient(scene)
-    dt = scene.dtype
-    if not scene.lights.position.shape[0]:
-        return jnp.zeros((0, xy.shape[1], 3), dt)
-    env = Environment(jnp.zeros((3,), dt), jnp.zeros((3,), dt))
-    spread = _spread(scene, opts, n)
-    kinds = prepare(scene)
-
-    def light(args):
-        pos, inten = args
-        sk = dataclasses.replace(scene, lights=PointLights(pos[None], inten[None]), environment=env)
-
-        def one(x):
-            o, d = rays_through(sk.camera, x, st.width, st.height)
-            c, _ = _shade(sk, kinds, o, d, jnp.ones_like(o), jnp.zeros_like(o[0]), spread, opts,
-                          jnp.asarray(False))
-            return c.T
-
-        return _map_positions(one, xy, opts.tile_rays)
-
-    return jax.lax.map(light, (scene.lights.position, scene.lights.intensity))
-
-
-def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int):
+def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
-    gradient; the jump across an edge)."""
+    gradient; the jump across an edge). With ``light`` (an index, may be traced)
+    below the number of lights: only what that light contributes, through every
+    specular path (no ambient, no background, the other lights off); at or above
+    it, everything."""
     st = opts.settings
     scene = jax.lax.stop_gradient(scene)
+    if light is not None:
+        L = scene.lights.position.shape[0]
+        every = light >= L
+        on = ((jnp.arange(L) == light) | every).astype(scene.dtype)
+        env = every.astype(scene.dtype)
+        scene = dataclasses.replace(
+            scene, lights=PointLights(scene.lights.position, scene.lights.intensity * on[:, None]),
+            environment=Environment(scene.environment.background * env, scene.environment.ambient * env))
     spread = _spread(scene, opts, n)
     kinds = prepare(scene)
 
@@ -479,8 +463,7 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
     samples = _render(scene, grid, None)  # (H n, W n, 3), differentiable
     img = samples.reshape(H, n, W, n, 3).mean((1, 3))
     f_grid = jax.lax.stop_gradient(samples).reshape(-1, 3)
-    edge, _ = edge_term(scene, W, H, eo, lambda xy: _radiance_at(scene, opts, xy, n),
-                        lambda xy: _light_terms(scene, opts, xy, n), f_grid)
+    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, opts, xy, n, light), f_grid)
     return img + edge
 
 
@@ -537,5 +520,5 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
                              "pass key=None (no jitter)")
         if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
-        return _render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget))
+        return _render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1))
     return _render_jit(scene, opts, key)

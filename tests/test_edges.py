@@ -8,7 +8,8 @@ tests check the boundary term of :mod:`raytrax.edges`:
   plain AD gives exactly 0);
 * against central finite differences of high-sample renders (light positions
   with two lights and several occluders, a sphere's centre and radius over a
-  checkered floor, a box's position), where plain AD is shown to be off;
+  checkered floor, a box's position; a ball seen only in a mirror and the
+  refractive index of a glass sphere), where plain AD is shown to be off;
 * for the unchanged image, the budget error, and finite gradients in
   degenerate configurations.
 """
@@ -22,6 +23,7 @@ import numpy as np
 import pytest
 
 import raytrax as rt
+from raytrax import edges
 
 # ---------------------------------------------------------------------------
 # Analytic: a fronto-parallel quad with constant radiance over a black background.
@@ -65,7 +67,12 @@ def test_sliding_quad_matches_analytic_derivative(spp):
     g_edge = float(jax.grad(lambda d: _moment(d, spp=spp, edge_gradients=True))(zero))
     g_plain = float(jax.grad(lambda d: _moment(d, spp=spp))(zero))
     assert g_plain == 0.0  # constant radiance: the interior term is zero, all of it is the edge
-    np.testing.assert_allclose(g_edge, exact, rtol=1e-9)
+    # The rows quadrature is exact; what is left is where each of the four corners is
+    # located along its edge, by bisection to 2^-(END_STEPS + 1) of the sample spacing h:
+    # |error| <= f h 2^-(END_STEPS + 1) (11 + 11 + 5 + 5), against exact = 36 f.
+    h = 1.0 / math.isqrt(spp)
+    rtol = 2.0 ** -(edges.END_STEPS + 1) * h * (11 + 11 + 5 + 5) / 36
+    np.testing.assert_allclose(g_edge, exact, rtol=rtol)
 
 
 def test_edge_mode_leaves_the_image_unchanged():
@@ -96,11 +103,21 @@ def test_bad_edge_options():
 
 FW, FH = 16, 12
 EDGE_SPP = 256  # the edge gradient's samples: a 16 x 16 grid per pixel
-REF_SPP = 2304  # the reference: a 48 x 48 grid per pixel
-STEP = 0.03  # world units: edges move 0.1-0.2 pixel, 5-10 of the reference's sample rows
-# (the reference has converged: at spp 4096 with step 0.02 the components agree within 1-5 %,
-# benchmarks/bench_edges.py prints both steps)
+REF_SPP = 9216  # the reference: a 96 x 96 grid per pixel
+STEP = 0.015  # world units: edges move 0.05-0.1 pixel, 5-10 of the reference's sample rows
+# The reference has converged: against spp 16384 (128 x 128) at the same step and spp 9216 at
+# half the step, every component asserted below agrees within 4 % (benchmarks/bench_edges.py
+# prints both). The loss weights are smooth over the image (a per-pixel random weight makes the
+# loss kink whenever an edge crosses a pixel boundary, so that no finite step converges).
 RTOL = 0.05
+
+
+def smooth_weights(h, w):
+    """``(h, w, 3)`` weights between 0.1 and 0.9 that vary slowly over the image."""
+    yy, xx = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
+    return np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
+                     0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
+                     0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0)], -1)
 
 
 @functools.lru_cache(maxsize=None)
@@ -136,8 +153,7 @@ def _occ_loss(q, **kw):
                                "object[1].center": q["center"], "object[1].radius": q["radius"],
                                "object[2].min": p["object[2].min"] + q["box"],
                                "object[2].max": p["object[2].max"] + q["box"]})
-    w = jnp.asarray(np.random.default_rng(0).uniform(size=(FH, FW, 3)))
-    return jnp.mean(w * rt.render(s, **kw))
+    return jnp.mean(jnp.asarray(smooth_weights(FH, FW)) * rt.render(s, **kw))
 
 
 @functools.lru_cache(maxsize=None)
@@ -162,16 +178,16 @@ def _table_text(t):
                      f"({(gp - fd) / fd:+.1%})" for (n, c), (fd, ge, gp) in t.items())
 
 
-def _large(t, key):
-    """A component at least a quarter of its parameter's largest |FD| component."""
-    big = max(abs(fd) for (n, _), (fd, _, _) in t.items() if n == key[0])
-    return abs(t[key][0]) >= 0.25 * big
+# Known misses at spp 256 (see docs/gradients.md): the sphere centre's x component is 3 % of the
+# largest centre component and the reference itself moves by 13 % between converged settings;
+# the box's x component is 9 % low, from a filtered checker edge behind the box's silhouette
+# (the jump changes along the edge within a sample row, an O(1/n) quadrature error).
+KNOWN = {("center", 0), ("box", 0)}
 
 
 def test_edge_gradients_match_finite_differences_where_plain_ad_does_not():
     t = _occ_table()
-    # Every component at least a quarter of its parameter's largest: within 5 %.
-    bad = [k for k, (fd, ge, _) in t.items() if _large(t, k) and abs(ge - fd) > RTOL * abs(fd)]
+    bad = [k for k, (fd, ge, _) in t.items() if k not in KNOWN and abs(ge - fd) > RTOL * abs(fd)]
     assert not bad, f"edge gradients off by more than 5 % in {bad}:\n{_table_text(t)}"
     # Plain AD misses the boundary terms: off by more than 20 % in some component of every parameter.
     for name in ("light0", "light1", "center", "radius", "box"):
@@ -179,10 +195,66 @@ def test_edge_gradients_match_finite_differences_where_plain_ad_does_not():
         assert worst > 0.2, f"plain AD unexpectedly close for {name}:\n{_table_text(t)}"
 
 
-@pytest.mark.xfail(reason="known miss: small components (a tenth of their parameter's largest: the box's x "
-                          "and z, light 1's z) are 6-55 % off at spp 256, about 5e-4 absolute; see "
-                          "docs/gradients.md", strict=False)
-def test_small_components_within_5_percent():
+@pytest.mark.xfail(reason="known misses at spp 256: the sphere centre's x (3 % of its largest component, "
+                          "reference unconverged) and the box's x (9 % low: a texture edge behind the "
+                          "silhouette); see docs/gradients.md", strict=False)
+def test_known_misses_within_5_percent():
     t = _occ_table()
-    bad = [k for k, (fd, ge, _) in t.items() if not _large(t, k) and abs(ge - fd) > RTOL * abs(fd)]
+    bad = [k for k in KNOWN if abs(t[k][1] - t[k][0]) > RTOL * abs(t[k][0])]
     assert not bad, f"off by more than 5 % in {bad}:\n{_table_text(t)}"
+
+
+# ---------------------------------------------------------------------------
+# Edges seen in a mirror and through glass.
+# ---------------------------------------------------------------------------
+
+SW, SH = 24, 18
+SPEC_RTOL = 0.15
+
+
+@functools.lru_cache(maxsize=None)
+def specular_scene():
+    """Physical shading, one light. A tilted mirror shows a ball that the camera does not
+    see directly (outside the view); a glass sphere (ior 1.5) refracts the edges of a red
+    stripe on the wall behind it. 24 x 18, depth 2 (the glass needs two refractions)."""
+    b = rt.SceneBuilder("physical", width=SW, height=SH, spp=EDGE_SPP, max_depth=2, background=(0.15, 0.15, 0.2))
+    b.camera(position=(0.0, 1.2, 6.0), look_at=(0.0, 1.0, 0.0), fov=40)
+    b.light((1.0, 4.0, 4.0), intensity=(25.0, 25.0, 25.0))
+    b.material("wall", color=(0.7, 0.7, 0.7))
+    b.material("red", color=(0.9, 0.15, 0.1))
+    b.material("mirror", color=(0.0, 0.0, 0.0), reflectivity=0.95)
+    b.material("ball", color=(0.2, 0.4, 0.9))
+    b.material("glass", transparency=1.0, ior=1.5)
+    b.quad([(-4, -1, -2), (4, -1, -2), (4, 4, -2), (-4, 4, -2)], "wall")
+    b.quad([(-2.2, -0.5, -1.9), (-1.4, -0.5, -1.9), (-1.4, 3.0, -1.9), (-2.2, 3.0, -1.9)], "red")
+    b.quad([(0.3, 0.0, -1.0), (2.6, 0.0, -1.5), (2.6, 2.4, -1.5), (0.3, 2.4, -1.0)], "mirror")
+    b.sphere((4.2, 1.0, 3.0), 0.6, "ball")
+    b.sphere((-1.4, 0.9, 0.5), 0.6, "glass")
+    return b.build(jnp.float64)
+
+
+def test_edges_seen_in_a_mirror_and_through_glass():
+    s = specular_scene()
+    names = {"ball": "object[3].center", "ior": "material.glass.ior"}
+    steps = {"ball": 0.015, "ior": 0.005}  # edges move 0.05-0.2 pixel
+    q0 = {k: rt.parameters(s)[v] for k, v in names.items()}
+    w = jnp.asarray(smooth_weights(SH, SW))
+
+    def loss(q, **kw):
+        return jnp.mean(w * rt.render(rt.with_parameters(s, {names[k]: v for k, v in q.items()}), **kw))
+
+    g_edge = jax.grad(lambda q: loss(q, edge_gradients=True))(q0)
+    g_plain = jax.grad(loss)(q0)
+    ref = jax.jit(lambda q: loss(q, spp=REF_SPP))
+    rows = []
+    for k in names:
+        v = jnp.atleast_1d(q0[k])
+        for c in range(v.shape[0]):
+            e = jnp.zeros_like(v).at[c].set(steps[k]).reshape(jnp.shape(q0[k]))
+            fd = float((ref(q0 | {k: q0[k] + e}) - ref(q0 | {k: q0[k] - e})) / (2 * steps[k]))
+            rows.append((f"{k}[{c}]", fd, float(jnp.atleast_1d(g_edge[k])[c]), float(jnp.atleast_1d(g_plain[k])[c])))
+    text = "\n".join(f"{n}: FD {fd:+.3e}  edge {ge:+.3e} ({(ge - fd) / fd:+.1%})  plain {gp:+.3e}" for n, fd, ge, gp in rows)
+    # The reference moves by up to 13 % (the ball's x, 5e-5) between this step and half of it,
+    # hence 15 %; plain AD is off by 70 % or more in every component, with the wrong sign for the ball.
+    assert all(abs(ge - fd) <= SPEC_RTOL * abs(fd) for _, fd, ge, _ in rows), text
+    assert all(abs(gp - fd) > 0.5 * abs(fd) for _, fd, _, gp in rows), text
