@@ -473,14 +473,14 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     o, d = rays_through(scene.camera, xy, width, height)
     M = xy.shape[1]
     ns = off["ns"]
-    alive = jnp.ones((M,), bool)
-    out = []
-    for lv in range(depth):
+    L = scene.lights.position.shape[0]
+
+    def live(o, d, alive):
         gid, t = _search(scene, kinds, off, o, d)
         gid = jnp.where(alive, gid, -2)
         hit = gid >= 0
         p = o + jnp.where(hit, t, 0.0)[None] * d
-        if scene.lights.position.shape[0]:
+        if L:
             # Occluders as objects: a convex solid is its first face, whichever faces
             # the shadow segment crosses.
             first, last = (object_key(P, ns, x) for x in _occluders(scene, kinds, off, p, hit))
@@ -489,12 +489,20 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
         mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]
         T, R = P.trans[mat], P.refl[mat]
         cont = hit & ((T > 0) | (R > 0))
-        refr = jnp.zeros((M,), bool)
-        if lv < depth - 1:
-            o, d, refr = _step(P, ns, gid, (T > 0) & (T >= R), o, d)
-        out.append((gid, cont & refr, first, last))
-        alive = cont
-    return Records(*(jnp.stack(x) for x in zip(*out)))
+        o2, d2, refr = _step(P, ns, gid, (T > 0) & (T >= R), o, d)
+        return (o2, d2, cont), (gid, cont & refr, first, last)
+
+    def dead(o, d, alive):  # no chain continues: skip the searches
+        none = jnp.full((L, M), -1, jnp.int32)
+        return (o, d, alive), (jnp.full((M,), -2, jnp.int32), jnp.zeros((M,), bool), none, none)
+
+    def level(carry, _):
+        return jax.lax.cond(jnp.any(carry[2]), live, dead, *carry)
+
+    # One compiled level, scanned over the chain (levels after the last mirror or glass
+    # hit of every ray cost nothing).
+    _, out = jax.lax.scan(level, (o, d, jnp.ones((M,), bool)), None, length=depth)
+    return Records(*out)
 
 
 def _rec_equal(r1: Records, r2: Records):
