@@ -26,6 +26,7 @@ loss sees).
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -37,32 +38,19 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
+from raytrax.testing import smooth_weights  # noqa: E402
 
 
 def scene(width, height, spp, dtype=jnp.float64):
-    b = rt.SceneBuilder("classic", width=width, height=height, spp=spp, max_depth=1,
-                        background=(0.2, 0.2, 0.25), ambient=(0.2, 0.2, 0.2))
-    b.camera(position=(0.5, 5.0, 5.5), look_at=(0, 0.3, 0), fov=38)
-    b.light((2.0, 5.0, 1.5), intensity=(0.7, 0.7, 0.7))
-    b.light((-3.0, 4.0, -0.5), intensity=(0.5, 0.45, 0.4))
-    b.material("floor", color=(0.9, 0.9, 0.85), texture=rt.Checker(color2=(0.3, 0.35, 0.4), scale=1.3))
-    b.material("ball", color=(0.8, 0.3, 0.2), specular=0.3, shininess=20)
-    b.material("crate", color=(0.2, 0.5, 0.8))
-    b.material("tet", color=(0.3, 0.8, 0.3))
-    b.plane((0, 0, 0), (0, 1, 0), "floor")
-    b.sphere((-0.4, 0.9, 0.3), 0.55, "ball")
-    b.box((0.6, 0.5, -0.9), (1.4, 1.2, -0.1), "crate", rotation=(0, 25, 0))
-    b.tetrahedron((-1.2, 0.6, -1.2), 1.0, "tet")
-    return b.build(dtype)
+    """``scenes/edge_occluders.toml`` (the scene of tests/test_edges.py) at another size."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "edge_occluders.toml")
+    return rt.load_scene(path, dtype=dtype).replace_settings(width=width, height=height, spp=spp)
 
 
 def make_loss(sc):
     p = rt.parameters(sc)
     H, W = sc.settings.height, sc.settings.width
-    yy, xx = np.meshgrid((np.arange(H) + 0.5) / H, (np.arange(W) + 0.5) / W, indexing="ij")
-    R = jnp.asarray(np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
-                              0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
-                              0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0)], -1), sc.dtype)
+    R = jnp.asarray(smooth_weights(H, W), sc.dtype)
     q0 = {"light0": p["light[0].position"], "light1": p["light[1].position"], "center": p["object[1].center"],
           "radius": p["object[1].radius"], "box": jnp.zeros(3, sc.dtype)}
 

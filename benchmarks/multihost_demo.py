@@ -36,14 +36,8 @@ def _scene():
     import raytrax as rt
 
     # The scene of tests/test_devices.py: small, quick to compile.
-    b = rt.SceneBuilder("physical", width=24, height=16, spp=1, max_depth=1)
-    b.camera((0, 1, 5), (0, 0.5, 0), fov=40)
-    b.light((2, 5, 2), (50, 50, 50))
-    b.material("floor", (0.8, 0.8, 0.8), texture=rt.Checker((0.2, 0.2, 0.2), 2.0))
-    b.material("ball", (0.7, 0.3, 0.2), reflectivity=0.3)
-    b.plane((0, 0, 0), (0, 1, 0), "floor")
-    b.sphere((0, 1, 0), 1.0, "ball")
-    return b.build()
+    return rt.load_scene(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes",
+                                      "ball_on_checker.toml"))
 
 
 def _step(report, name, fn):

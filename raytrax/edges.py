@@ -170,31 +170,26 @@ def _box_faces(boxes):
 
 
 def build_prims(scene) -> tuple[Prims, dict]:
-    """The :class:`Prims` of ``scene`` (differentiable) and the id offsets per kind."""
+    """The :class:`Prims` of ``scene`` (differentiable) and :func:`id_offsets` with the
+    ``solid`` table (polygon index of each polygon's solid's first face, -1: none)."""
     dt = scene.dtype
+    off = id_offsets(scene)
+    ns = off["ns"]
     parts = []  # (pp, pn, eo, em, finite)
     pmat = []  # material of each polygon
-    off = {}
-    ns = scene.spheres.center.shape[0]
-    count = ns
     pl = scene.planes
-    off["plane"] = count
     if pl.point.shape[0]:
         N = pl.point.shape[0]
         z = jnp.zeros((N, 4, 3), dt)
         parts.append((pl.point, _unit(pl.normal), z, z, jnp.zeros((N,), bool)))
         pmat.append(pl.material)
-        count += N
-    off["quad"] = count
     if scene.quads.corners.shape[0]:
-        q = _quad_polys(scene.quads.corners)
-        parts.append(q + (jnp.ones((q[0].shape[0],), bool),))
+        parts.append(_quad_polys(scene.quads.corners) + (jnp.ones((scene.quads.corners.shape[0],), bool),))
         pmat.append(scene.quads.material)
-        count += q[0].shape[0]
-    off["triangle"] = count
     solids = []  # (first polygon index, faces per solid, number of solids)
     if scene.tetrahedra.center.shape[0]:
-        solids.append((count - off["plane"] + scene.triangles.vertices.shape[0], 4, scene.tetrahedra.center.shape[0]))
+        solids.append((off["triangle"] - off["plane"] + scene.triangles.vertices.shape[0], 4,
+                       scene.tetrahedra.center.shape[0]))
     T, TM = scene.merged_triangles()
     if T.shape[0]:
         v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
@@ -203,15 +198,10 @@ def build_prims(scene) -> tuple[Prims, dict]:
         q = _polys_from_edges(origins, dirs, jnp.cross(v1 - v0, v2 - v0))
         parts.append(q + (jnp.ones((T.shape[0],), bool),))
         pmat.append(TM)
-        count += T.shape[0]
-    off["box"] = count
     if scene.boxes.lo.shape[0]:
-        solids.append((count - off["plane"], 6, scene.boxes.lo.shape[0]))
-        q = _quad_polys(_box_faces(scene.boxes))
-        parts.append(q + (jnp.ones((q[0].shape[0],), bool),))
+        solids.append((off["box"] - off["plane"], 6, scene.boxes.lo.shape[0]))
+        parts.append(_quad_polys(_box_faces(scene.boxes)) + (jnp.ones((6 * scene.boxes.lo.shape[0],), bool),))
         pmat.append(jnp.repeat(scene.boxes.material, 6))
-        count += q[0].shape[0]
-    off["total"] = count
     if parts:
         pp, pn, eo, em, fin = (jnp.concatenate(x, 0) for x in zip(*parts))
     else:  # one dummy polygon keeps the gathers well defined
@@ -238,7 +228,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
     prims = Prims(c, r, pp.T, pn.T, jnp.transpose(eo, (1, 2, 0)), jnp.transpose(em, (1, 2, 0)), fin,
                   jnp.asarray(solid), jnp.asarray(nface), L, mat, ms.transparency,
                   jnp.max(ms.reflectivity, axis=1), ms.ior)
-    return prims, dict(off, ns=ns, solid=solid)
+    return prims, dict(off, solid=solid)
 
 
 # ----------------------------------------------------------------------------
@@ -566,7 +556,7 @@ def _pieces(p0, p1, width, height):
     return jnp.stack(pix), jnp.stack(wts)
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid, _debug=False):
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
     whose derivative with respect to ``scene`` is the edge contribution, and the
     number of sample pairs with an edge between them.
@@ -586,10 +576,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid, _debug
     h = 1.0 / n
     sg = jax.lax.stop_gradient(scene)
     kinds = prepare(sg)
-    off = id_offsets(sg)
-    P, offp = build_prims(scene)
+    P, off = build_prims(scene)
     P_sg = jax.lax.stop_gradient(P)
-    ns = offp["ns"]
+    ns = off["ns"]
 
     def rec_at(x):
         return records(sg, kinds, off, P_sg, x, width, height, D)
@@ -829,9 +818,6 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid, _debug
         coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
         out = {"typ": ev.typ, "p1": ev.p1, "p2": ev.p2, "sign": ev.sign, "xs": xs, "coef": coef.T, "pix": pix,
                "wts": wts, "ok": ok}
-        if _debug:
-            out.update(df=df.T, den=den, ext=jnp.stack([e_m, e_p]), jump_ok=jump_ok,
-                       full=jnp.stack([full[:E], full[E:]]))
         return out
 
     def chunked(x):  # (..., K) -> (nc, ..., C)
@@ -844,8 +830,6 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid, _debug
 
     res = jax.lax.map(solve_or_skip, {k: chunked(jax.lax.stop_gradient(v)) for k, v in inputs.items()})
     res = {k: jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (K,)) for k, v in res.items()}
-    if _debug:
-        return dict(res, vis=vis, level=level, count=count, live=live, chain=chain, refr=refr, k=k_ev)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
     g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)

@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["check_gradients", "gradient_report", "GradientReport", "render64", "image_loss"]
+__all__ = ["check_gradients", "gradient_report", "GradientReport", "render64", "image_loss", "smooth_weights"]
 
 _EPS64 = float(np.finfo(np.float64).eps)
 
@@ -69,6 +69,21 @@ def render64(scene, **render_kwargs) -> jax.Array:
 
     _require_x64("raytrax.testing.render64")
     return render(scene.astype(jnp.float64), **render_kwargs)
+
+
+def smooth_weights(height: int, width: int) -> np.ndarray:
+    """``(height, width, 3)`` loss weights between 0.1 and 0.9 that vary slowly over the
+    image (a different low-frequency wave per channel).
+
+    For checking edge gradients (``render(..., edge_gradients=True)``) against finite
+    differences: with a weight that jumps from pixel to pixel, ``sum(w * image)`` has a
+    kink whenever an edge crosses a pixel boundary, so no finite step converges to its
+    derivative; with these weights the kinks are small and a step that moves edges by a
+    tenth of a pixel does converge."""
+    yy, xx = np.meshgrid((np.arange(height) + 0.5) / height, (np.arange(width) + 0.5) / width, indexing="ij")
+    return np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
+                     0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
+                     0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0)], -1)
 
 
 def image_loss(scene, target, *, weights=None, **render_kwargs) -> Callable[[Mapping[str, Any]], jax.Array]:

@@ -1,5 +1,7 @@
 """Sharding the image over several devices and batching renders with vmap."""
 
+import os
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -11,16 +13,9 @@ import raytrax as rt
 
 @pytest.fixture(scope="module")
 def scene():
-    # Kept small (two primitive kinds, no dielectric) because every distinct
-    # configuration here is compiled once more for several devices.
-    b = rt.SceneBuilder("physical", width=24, height=16, spp=1, max_depth=1)
-    b.camera((0, 1, 5), (0, 0.5, 0), fov=40)
-    b.light((2, 5, 2), (50, 50, 50))
-    b.material("floor", (0.8, 0.8, 0.8), texture=rt.Checker((0.2, 0.2, 0.2), 2.0))
-    b.material("ball", (0.7, 0.3, 0.2), reflectivity=0.3)
-    b.plane((0, 0, 0), (0, 1, 0), "floor")
-    b.sphere((0, 1, 0), 1.0, "ball")
-    return b.build()
+    # scenes/ball_on_checker.toml: small (two primitive kinds, no dielectric) because every
+    # distinct configuration here is compiled once more for several devices.
+    return rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "ball_on_checker.toml"))
 
 
 def test_four_host_devices_available():

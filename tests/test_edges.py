@@ -16,6 +16,7 @@ tests check the boundary term of :mod:`raytrax.edges`:
 
 import functools
 import math
+import os
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +25,7 @@ import pytest
 
 import raytrax as rt
 from raytrax import edges
+from raytrax.testing import smooth_weights
 
 # ---------------------------------------------------------------------------
 # Analytic: a fronto-parallel quad with constant radiance over a black background.
@@ -112,32 +114,15 @@ STEP = 0.015  # world units: edges move 0.05-0.1 pixel, 5-10 of the reference's 
 RTOL = 0.05
 
 
-def smooth_weights(h, w):
-    """``(h, w, 3)`` weights between 0.1 and 0.9 that vary slowly over the image."""
-    yy, xx = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
-    return np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
-                     0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
-                     0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0)], -1)
-
-
 @functools.lru_cache(maxsize=None)
 def occluder_scene():
-    """A checkered floor (filtered texture) under two lights, with a sphere, a box
-    (lifted, rotated) and a tetrahedron casting shadows and silhouettes, 16 x 12."""
-    b = rt.SceneBuilder("classic", width=FW, height=FH, spp=EDGE_SPP, max_depth=1, background=(0.2, 0.2, 0.25),
-                        ambient=(0.2, 0.2, 0.2))
-    b.camera(position=(0.5, 5.0, 5.5), look_at=(0, 0.3, 0), fov=38)
-    b.light((2.0, 5.0, 1.5), intensity=(0.7, 0.7, 0.7))
-    b.light((-3.0, 4.0, -0.5), intensity=(0.5, 0.45, 0.4))
-    b.material("floor", color=(0.9, 0.9, 0.85), texture=rt.Checker(color2=(0.3, 0.35, 0.4), scale=1.3))
-    b.material("ball", color=(0.8, 0.3, 0.2), specular=0.3, shininess=20)
-    b.material("crate", color=(0.2, 0.5, 0.8))
-    b.material("tet", color=(0.3, 0.8, 0.3))
-    b.plane((0, 0, 0), (0, 1, 0), "floor")
-    b.sphere((-0.4, 0.9, 0.3), 0.55, "ball")
-    b.box((0.6, 0.5, -0.9), (1.4, 1.2, -0.1), "crate", rotation=(0, 25, 0))
-    b.tetrahedron((-1.2, 0.6, -1.2), 1.0, "tet")
-    return b.build(jnp.float64)
+    """``scenes/edge_occluders.toml``: a checkered floor (filtered texture) under two lights,
+    with a sphere, a box (lifted, rotated) and a tetrahedron casting shadows and silhouettes,
+    16 x 12, spp 256 (the benchmark loads the same file)."""
+    s = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_occluders.toml"),
+                      dtype=jnp.float64)
+    assert (s.settings.width, s.settings.height, s.settings.spp) == (FW, FH, EDGE_SPP)
+    return s
 
 
 def _occ_params():
