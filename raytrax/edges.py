@@ -47,25 +47,37 @@ Method (analytic edge functions found between neighbouring samples; see
    the implicit function theorem gives the edge's displacement
    ``dx_s/dtheta = -g_theta / g_x``. Rows of samples estimate the boundary
    integral by Fubini (``int dy sum_crossings (f_a - f_b) dx_s/dtheta``), columns
-   likewise; weighting the two by ``|g_x|`` and ``|g_y|`` over ``|g_x| + |g_y|``
-   keeps every term bounded however the edge is oriented.
+   likewise; the two share each edge by the weights ``g_x^4`` and ``g_y^4`` over
+   ``g_x^4 + g_y^4``, which keeps every term bounded however the edge is oriented
+   and gives each edge mostly to the direction that crosses it steeply (there one
+   crossing stands for a short piece of edge).
 4. Each crossing stands for the piece of edge between the rows (columns) on
    either side of it. Where the edge ends or changes character inside that strip
    (a corner, a T-junction with another edge, the end of a shadow on another
    object), the piece is cut there: the edge is followed to the neighbouring row
    (Newton's method on ``g``) and the records on both sides of it are compared
-   with those at ``x_s``; if they differ, bisection finds where. The piece is
-   then split between the pixels it crosses. This makes the quadrature
-   error ``O(1/n^2)`` instead of ``O(1/n)`` at corners and pixel boundaries.
+   with those at ``x_s``; if they differ, bisection finds where. The records
+   include the hard procedural pattern (checker or stripes colour) at each hit,
+   so a piece is also cut where a pattern edge meets it. Where the neighbouring
+   row's pair of samples straddles another edge as well (a shadow edge running
+   into a silhouette), that row has no crossing of this edge, and the rows on
+   either side extend their pieces to it. The piece is then split between the
+   pixels it crosses. This makes the quadrature error ``O(1/n^2)`` instead of
+   ``O(1/n)`` at corners, T-junctions and pixel boundaries.
 5. Each crossing adds
 
-       c * g(x_s, theta),   c = -(f_a - f_b) ell sign(g_dir) / (|g_x| + |g_y|)
+       c * g(x_s, theta),   c = -(f_a - f_b) ell sign(g_dir) w / |g_dir|
 
    (``ell``: the strip length the crossing stands for, ``1/n`` inside an edge)
-   to the pixels its piece covers, with ``c`` and ``x_s`` held constant: its
-   value is ``0`` (``g(x_s) = 0``) and its derivative is the boundary term.
-   ``f_a - f_b`` is the jump of the whole sample radiance, measured by two
-   probe rays just on either side of ``x_s``.
+   (``w``: the direction's weight above) to the pixels its piece covers, with
+   ``c`` and ``x_s`` held constant: its value is ``0`` (``g(x_s) = 0``) and its
+   derivative is the boundary term. ``f_a - f_b`` is the jump of the sample
+   radiance (of one light's contribution for a shadow edge), measured by two
+   probe rays just on either side of ``x_s`` with the hard (unfiltered)
+   patterns: the limit the estimate converges to is the image as the samples
+   grow, where the pattern filter's width goes to 0. A crossing whose probes do
+   not see the two primitives that define it (near a corner, where the samples
+   straddle two edges) adds nothing; the pieces of its neighbours are cut there.
 
 The estimate converges to the derivative of the pixel integral as ``n`` grows.
 What it does not include: edges along the non-dominant specular branch (the
@@ -89,8 +101,9 @@ import numpy as np
 
 from . import _vec as V
 from .camera import rays_through
-from .integrator import EPS_REL
-from .intersect import _closest_kind, prepare
+from . import textures as tx
+from .integrator import EPS_REL, _pattern_cell
+from .intersect import _closest_kind, _no_hit, prepare
 from .materials import fresnel_dielectric, refract
 from .shapes import euler_matrix
 
@@ -430,6 +443,7 @@ class Records(NamedTuple):
     refr: jax.Array  # (D, M) the chain refracts (else reflects) at that hit
     first: jax.Array  # (D, L, M) first occluder between the hit and each light (-1: none; see object_key)
     last: jax.Array  # (D, L, M) last occluder
+    cell: jax.Array  # (D, M) the hard procedural pattern at the hit (0 / 1; see integrator._pattern_cell)
 
 
 def object_key(P: Prims, ns, g):
@@ -457,6 +471,24 @@ def _occluders(scene, kinds, off, p, hit):
     return jax.lax.map(one, scene.lights.position)
 
 
+def _hit_cell(scene, kinds, off, gid, o, d, t, mat):
+    """The hard pattern colour (0 / 1) at the hits ``gid`` of rays ``o, d`` at distance
+    ``t``; all 0 when no material has a checker or stripes."""
+    mats = scene.materials
+    if tx.CHECKER not in mats.kinds_present and tx.STRIPES not in mats.kinds_present:
+        return jnp.zeros(gid.shape, jnp.int32)
+    ranges = {"sphere": (0, off["plane"]), "plane": (off["plane"], off["quad"]), "quad": (off["quad"], off["triangle"]),
+              "triangle": (off["triangle"], off["box"]), "box": (off["box"], off["total"])}
+    uv = jnp.zeros((2,) + gid.shape, o.dtype)
+    for k in kinds:
+        lo_, hi_ = ranges[k.name]
+        sel = (gid >= lo_) & (gid < hi_)
+        idx = jnp.where(sel, (gid - lo_) // 6 if k.name == "box" else gid - lo_, 0)
+        _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, _no_hit, idx, o, d, jnp.where(sel, t, 0.0))
+        uv = jnp.where(sel[None], uvk, uv)
+    return jnp.where(gid >= 0, _pattern_cell(mats, mat, uv), 0)
+
+
 def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
     ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``."""
@@ -480,11 +512,13 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
         T, R = P.trans[mat], P.refl[mat]
         cont = hit & ((T > 0) | (R > 0))
         o2, d2, refr = _step(P, ns, gid, (T > 0) & (T >= R), o, d)
-        return (o2, d2, cont), (gid, cont & refr, first, last)
+        cell = _hit_cell(scene, kinds, off, gid, o, d, jnp.where(hit, t, 0.0), mat)
+        return (o2, d2, cont), (gid, cont & refr, first, last, cell)
 
     def dead(o, d, alive):  # no chain continues: skip the searches
         none = jnp.full((L, M), -1, jnp.int32)
-        return (o, d, alive), (jnp.full((M,), -2, jnp.int32), jnp.zeros((M,), bool), none, none)
+        return (o, d, alive), (jnp.full((M,), -2, jnp.int32), jnp.zeros((M,), bool), none, none,
+                               jnp.zeros((M,), jnp.int32))
 
     def level(carry, _):
         return jax.lax.cond(jnp.any(carry[2]), live, dead, *carry)
@@ -497,7 +531,7 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
 
 def _rec_equal(r1: Records, r2: Records):
     """Records ``(.., M)`` equal in every field, ``(M,)``."""
-    eq = jnp.all(r1.hit == r2.hit, 0) & jnp.all(r1.refr == r2.refr, 0)
+    eq = jnp.all(r1.hit == r2.hit, 0) & jnp.all(r1.refr == r2.refr, 0) & jnp.all(r1.cell == r2.cell, 0)
     if r1.first.shape[1]:
         eq = eq & jnp.all(r1.first == r2.first, (0, 1)) & jnp.all(r1.last == r2.last, (0, 1))
     return eq
@@ -556,18 +590,17 @@ def _pieces(p0, p1, width, height):
     return jnp.stack(pix), jnp.stack(wts)
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
     whose derivative with respect to ``scene`` is the edge contribution, and the
     number of sample pairs with an edge between them.
 
     ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
     through image positions ``xy`` (with ``light``: that light's contribution
-    alone); ``f_grid (S, 3)``: the radiance of the grid samples. Both are
-    treated as constants. The jump ``f_minus - f_plus`` is measured by probe
+    alone), treated as a constant. The jump ``f_minus - f_plus`` is measured by probe
     rays just on either side of the edge point (``1/256`` of the sample spacing
     away for visibility edges, 0.03 pixel for shadow edges), where the probes
-    see the same as the two samples (else, for visibility edges, at the samples).
+    see the same as the two samples (else the crossing adds nothing).
     """
     n = eo.samples
     D = eo.depth
@@ -587,7 +620,6 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
     jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
     xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
     R = rec_at(xy)
-    f_grid = jax.lax.stop_gradient(f_grid)
     L = R.first.shape[1]
     a, b, horiz = _pairs(Gw, Gh)
     def okey(g):
@@ -662,8 +694,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
     else:
         fa = la = fb = lb = occ = jnp.zeros_like(A)
     inputs = {"live": live, "vis": vis, "level": level, "chain": chain, "refr": refr, "A": A, "B": B, "occ": occ,
-              "k": k_ev, "fa": fa, "la": la, "fb": fb, "lb": lb, "xa": xy[:, ea], "xb": xy[:, eb], "eh": horiz[pair],
-              "fga": f_grid[ea].T, "fgb": f_grid[eb].T}
+              "k": k_ev, "fa": fa, "la": la, "fb": fb, "lb": lb, "xa": xy[:, ea], "xb": xy[:, eb], "eh": horiz[pair]}
 
     def solve(c):
         """Everything about one chunk of ``C`` events that needs no gradient."""
@@ -771,8 +802,32 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
                                                (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32)))
             return x1, conv, f
 
+        def seen(x, r):
+            """Does the pair of grid samples around ``x`` (a point of the edge on a
+            sample row or column) see the same on either side as the probes there
+            (records ``r``)? If not (it straddles another edge too), that row has no
+            crossing of this edge, and the rows beside it cover its piece."""
+            t = x * n - 0.5  # grid coordinates
+            ca = jnp.floor(jnp.where(along2 > 0, t, jnp.round(t))).astype(jnp.int32)
+            inside = (ca[0] >= 0) & (ca[1] >= 0) & (ca[0] + along2[0].astype(jnp.int32) < Gw) \
+                & (ca[1] + along2[1].astype(jnp.int32) < Gh)
+            ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
+            ib = jnp.clip(ia + jnp.where(along2[0] > 0, 1, Gw), 0, S - 1)
+            at = jax.tree_util.tree_map(lambda v: v[..., jnp.concatenate([ia, ib])], R)
+            # Compared on what makes this event: the chain prefix, the hit at its
+            # level and, for a shadow edge, its light's occluders there.
+            lv4 = jnp.tile(c["level"], 4)
+            same = jnp.ones(lv4.shape, bool)
+            for q in range(D):
+                same = same & ((q > lv4) | (at.hit[q] == r.hit[q])) & ((q >= lv4) | (at.refr[q] == r.refr[q]))
+            if L:
+                k4, ar = jnp.tile(c["k"], 4), jnp.arange(4 * E)
+                same = same & (jnp.tile(vis, 4) | ((at.first[lv4, k4, ar] == r.first[lv4, k4, ar])
+                                                   & (at.last[lv4, k4, ar] == r.last[lv4, k4, ar])))
+            return ~inside | (same[:2 * E] & same[2 * E:])
+
         def end_step(i, st):
-            lo, hi, full, ref, feat = st
+            lo, hi, full, lost, ref, feat = st
             mid = jnp.where(i == 0, 0.0, jnp.where(i == 1, hi, 0.5 * (lo + hi)))
             x, conv, f = on_edge(xs2b + mid[None] * tdir2)
             r = rec_at(jnp.concatenate([x - u2, x + u2], 1))  # minus side, plus side (each 2E)
@@ -780,15 +835,19 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
             feat = jnp.where(i == 0, f, feat)
             v = conv & (f == feat) & _rec_equal(_rec_slice(r, slice(0, 2 * E)), _rec_slice(ref, slice(0, 2 * E))) \
                 & _rec_equal(_rec_slice(r, slice(2 * E, 4 * E)), _rec_slice(ref, slice(2 * E, 4 * E)))
-            full = jnp.where(i == 1, v, full)
+            nb = seen(x, r)
+            full = jnp.where(i == 1, v & nb, full)
+            lost = jnp.where(i == 1, v & ~nb, lost)
             lo = jnp.where((i > 1) & v, mid, lo)
             hi = jnp.where((i > 1) & ~v, mid, hi)
-            return lo, hi, full, ref, feat
+            return lo, hi, full, lost, ref, feat
 
         ref0 = Records(jnp.zeros((D, 4 * E), jnp.int32), jnp.zeros((D, 4 * E), bool),
-                       jnp.zeros((D, L, 4 * E), jnp.int32), jnp.zeros((D, L, 4 * E), jnp.int32))
-        lo, hi, full, ref, _ = jax.lax.fori_loop(
-            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, jnp.zeros(sided.shape, bool), ref0,
+                       jnp.zeros((D, L, 4 * E), jnp.int32), jnp.zeros((D, L, 4 * E), jnp.int32),
+                       jnp.zeros((D, 4 * E), jnp.int32))
+        no = jnp.zeros(sided.shape, bool)
+        lo, hi, full, lost, ref, _ = jax.lax.fori_loop(
+            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, no, no, ref0,
                                          jnp.zeros(sided.shape, jnp.int32)))
         r_m, r_p = _rec_slice(ref, slice(0, E)), _rec_slice(ref, slice(2 * E, 3 * E))
         lvl = c["level"]
@@ -809,12 +868,19 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, f_grid):
         fl = jax.lax.map(lambda k: radiance_at(probes, k), jnp.arange(L + 1))  # (L + 1, 2E, 3)
         which = jnp.where(vis, L, c["k"])
         fr = jnp.take_along_axis(fl, jnp.concatenate([which, which])[None, :, None], 0)[0]
-        df = jnp.where(jump_ok[:, None], fr[:E] - fr[E:], jnp.where(vis[:, None], (c["fga"] - c["fgb"]).T, 0.0))
+        df = jnp.where(jump_ok[:, None], fr[:E] - fr[E:], 0.0)
 
-        ext = jnp.where(full, 0.5 * h, jnp.abs(0.5 * (lo + hi)))
+        ext = jnp.where(full, 0.5 * h, jnp.where(lost, h, jnp.abs(0.5 * (lo + hi))))
         e_m, e_p = ext[:E], ext[E:]
         pix, wts = _pieces(xs - e_m[None] * tdir, xs + e_p[None] * tdir, width, height)
-        coef = -df * (jnp.sign(ga) * V.safe_div(1.0, den) * (e_m + e_p))[:, None]
+        # Rows and columns share each edge by the weight |g_a|^4 / (g_x^4 + g_y^4): each
+        # direction takes the edges it crosses steeply, where one crossing stands for a
+        # piece of edge at most ~1.2 sample spacings long (a crossing of a shallow edge
+        # stands for a long piece, along which the jump may change).
+        m = jnp.maximum(jnp.abs(gx), jnp.abs(gy))
+        a4, c4 = V.safe_div(ga, m) ** 4, V.safe_div(gc, m) ** 4
+        wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
+        coef = -df * (jnp.sign(ga) * wgt * (e_m + e_p))[:, None]
         coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
         out = {"typ": ev.typ, "p1": ev.p1, "p2": ev.p2, "sign": ev.sign, "xs": xs, "coef": coef.T, "pix": pix,
                "wts": wts, "ok": ok}

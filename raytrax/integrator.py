@@ -87,6 +87,25 @@ def _material_rows(mats, mat, names):
     return out
 
 
+def _pattern_cell(mats, mat, uv):
+    """Which colour the *hard* (unfiltered) procedural pattern shows at ``uv (2, n)``
+    on materials ``mat (n,)``: 1 for ``color2``, else 0 (also for materials without a
+    checker or stripes). Edge gradients cut edge pieces where it changes."""
+    kinds = mats.kinds_present
+    cell = jnp.zeros(mat.shape, jnp.int32)
+    if tx.CHECKER not in kinds and tx.STRIPES not in kinds:
+        return cell
+    rows = _material_rows(mats, mat, ("tex_scale", "tex_direction"))
+    k = _gather_rows(mats.tex_kind, mat)
+    zero = jnp.zeros_like(uv)
+    if tx.CHECKER in kinds:
+        cell = jnp.where(k == tx.CHECKER, tx.checker(uv, zero, rows["tex_scale"], False).astype(jnp.int32), cell)
+    if tx.STRIPES in kinds:
+        hard = tx.stripes(uv, zero, rows["tex_scale"], rows["tex_direction"], False)
+        cell = jnp.where(k == tx.STRIPES, hard.astype(jnp.int32), cell)
+    return cell
+
+
 def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
     kinds = mats.kinds_present
     if rows is None:
@@ -462,8 +481,11 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
                                jitter=False)
     samples = _render(scene, grid, None)  # (H n, W n, 3), differentiable
     img = samples.reshape(H, n, W, n, 3).mean((1, 3))
-    f_grid = jax.lax.stop_gradient(samples).reshape(-1, 3)
-    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, opts, xy, n, light), f_grid)
+    # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
+    # where the pattern changes beside the edge: the derivative the estimate converges
+    # to is that of the image as the samples grow, where the filter width goes to 0.
+    hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
+    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, hard, xy, n, light))
     return img + edge
 
 
