@@ -100,8 +100,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _vec as V
-from .camera import rays_through
 from . import textures as tx
+from .camera import rays_through
 from .integrator import EPS_REL, _pattern_cell
 from .intersect import _closest_kind, _no_hit, prepare
 from .materials import fresnel_dielectric, refract
@@ -112,6 +112,8 @@ END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
 NEWTON_STEPS = 3  # following an edge to the neighbouring row
 CHUNK = 512  # events solved per step of the (skippable) chunk loop
 MAX_FACES = 6
+
+
 class Prims(NamedTuple):
     """Every primitive as a sphere or a convex planar polygon (component-major).
 
@@ -315,8 +317,6 @@ def first_t(P: Prims, ns, ids, o, d):
     return jnp.where(is_s, ts, tp)
 
 
-
-
 def _step(P: Prims, ns, ids, want_t, o, d):
     """The specular child of rays ``o, d (3, E)`` at their hit on primitive ``ids``:
     refracted where ``want_t`` (unless totally internally reflected), else
@@ -409,18 +409,23 @@ def _search(scene, kinds, off, o, d, tmax=None):
     best_id = jnp.full((n,), -1, jnp.int32)
     for k in kinds:
         t, idx = _closest_kind(k, ray, 0.0)
-        if k.name == "sphere":
-            gid = idx
-        elif k.name == "box":
-            gid = off["box"] + 6 * idx + _box_face_index(scene, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
-        else:
-            gid = off[k.name] + idx
+        start, _, per = _kind_ids(off, k.name)
+        gid = start + per * idx
+        if k.name == "box":
+            gid = gid + _box_face_index(scene, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
         better = t < best_t
         best_t = jnp.where(better, t, best_t)
         best_id = jnp.where(better, gid, best_id)
     if tmax is not None:
         best_id = jnp.where(best_t < tmax, best_id, -1)
     return best_id, best_t
+
+
+def _kind_ids(off, name):
+    """Global ids of the primitives of kind ``name`` (as in :func:`raytrax.intersect.prepare`):
+    ``[start, end)``, ``per`` ids per primitive (a box's 6 faces)."""
+    nxt = {"sphere": "plane", "plane": "quad", "quad": "triangle", "triangle": "box", "box": "total"}[name]
+    return (0 if name == "sphere" else off[name]), off[nxt], (6 if name == "box" else 1)
 
 
 def id_offsets(scene) -> dict:
@@ -477,13 +482,11 @@ def _hit_cell(scene, kinds, off, gid, o, d, t, mat):
     mats = scene.materials
     if tx.CHECKER not in mats.kinds_present and tx.STRIPES not in mats.kinds_present:
         return jnp.zeros(gid.shape, jnp.int32)
-    ranges = {"sphere": (0, off["plane"]), "plane": (off["plane"], off["quad"]), "quad": (off["quad"], off["triangle"]),
-              "triangle": (off["triangle"], off["box"]), "box": (off["box"], off["total"])}
     uv = jnp.zeros((2,) + gid.shape, o.dtype)
     for k in kinds:
-        lo_, hi_ = ranges[k.name]
-        sel = (gid >= lo_) & (gid < hi_)
-        idx = jnp.where(sel, (gid - lo_) // 6 if k.name == "box" else gid - lo_, 0)
+        start, end, per = _kind_ids(off, k.name)
+        sel = (gid >= start) & (gid < end)
+        idx = jnp.where(sel, (gid - start) // per, 0)
         _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, _no_hit, idx, o, d, jnp.where(sel, t, 0.0))
         uv = jnp.where(sel[None], uvk, uv)
     return jnp.where(gid >= 0, _pattern_cell(mats, mat, uv), 0)
@@ -578,8 +581,8 @@ def _pieces(p0, p1, width, height):
         tau = V.safe_div(jnp.floor(jnp.maximum(c0, c1)) - c0, c1 - c0)
         return jnp.where(has, jnp.clip(tau, 0.0, 1.0), 1.0)
 
-    tx, ty = cross(p0[0], p1[0]), cross(p0[1], p1[1])
-    taus = [jnp.zeros_like(tx), jnp.minimum(tx, ty), jnp.maximum(tx, ty), jnp.ones_like(tx)]
+    cx, cy = cross(p0[0], p1[0]), cross(p0[1], p1[1])
+    taus = [jnp.zeros_like(cx), jnp.minimum(cx, cy), jnp.maximum(cx, cy), jnp.ones_like(cx)]
     pix, wts = [], []
     for j in range(3):
         mid = p0 + (0.5 * (taus[j] + taus[j + 1]))[None] * (p1 - p0)

@@ -87,23 +87,29 @@ def _material_rows(mats, mat, names):
     return out
 
 
+def _pattern_fraction(mats, k, rows, uv, wuv, filtered):
+    """Fraction ``(n,)`` of the footprint on ``color2`` of each ray's checker or stripes
+    (0 for other texture kinds ``k (n,)``); ``rows``: ``tex_scale`` and, with stripes,
+    ``tex_direction``; ``wuv (2, n)``: footprint widths in uv units."""
+    kinds = mats.kinds_present
+    frac = jnp.zeros_like(uv[0])
+    if tx.CHECKER in kinds:
+        frac = jnp.where(k == tx.CHECKER, tx.checker(uv, wuv, rows["tex_scale"], filtered), frac)
+    if tx.STRIPES in kinds:
+        frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, rows["tex_scale"], rows["tex_direction"], filtered),
+                         frac)
+    return frac
+
+
 def _pattern_cell(mats, mat, uv):
     """Which colour the *hard* (unfiltered) procedural pattern shows at ``uv (2, n)``
     on materials ``mat (n,)``: 1 for ``color2``, else 0 (also for materials without a
     checker or stripes). Edge gradients cut edge pieces where it changes."""
-    kinds = mats.kinds_present
-    cell = jnp.zeros(mat.shape, jnp.int32)
-    if tx.CHECKER not in kinds and tx.STRIPES not in kinds:
-        return cell
+    if tx.CHECKER not in mats.kinds_present and tx.STRIPES not in mats.kinds_present:
+        return jnp.zeros(mat.shape, jnp.int32)
     rows = _material_rows(mats, mat, ("tex_scale", "tex_direction"))
     k = _gather_rows(mats.tex_kind, mat)
-    zero = jnp.zeros_like(uv)
-    if tx.CHECKER in kinds:
-        cell = jnp.where(k == tx.CHECKER, tx.checker(uv, zero, rows["tex_scale"], False).astype(jnp.int32), cell)
-    if tx.STRIPES in kinds:
-        hard = tx.stripes(uv, zero, rows["tex_scale"], rows["tex_direction"], False)
-        cell = jnp.where(k == tx.STRIPES, hard.astype(jnp.int32), cell)
-    return cell
+    return _pattern_fraction(mats, k, rows, uv, jnp.zeros_like(uv), False).astype(jnp.int32)
 
 
 def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
@@ -114,14 +120,7 @@ def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
     if not kinds:
         return base
     k = _gather_rows(mats.tex_kind, mat)
-    scale = rows["tex_scale"]
-    wuv = rate * width[None]
-    frac = jnp.zeros_like(base[0])
-    if tx.CHECKER in kinds:
-        frac = jnp.where(k == tx.CHECKER, tx.checker(uv, wuv, scale, filtered), frac)
-    if tx.STRIPES in kinds:
-        dirn = rows["tex_direction"]
-        frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, scale, dirn, filtered), frac)
+    frac = _pattern_fraction(mats, k, rows, uv, rate * width[None], filtered)
     c2 = rows["tex_color2"]
     color = base + (c2 - base) * frac[None]
     if tx.IMAGE in kinds:
