@@ -40,10 +40,10 @@ from raytrax.testing import smooth_weights  # noqa: E402
 W, H = 8, 6
 
 
-def scene():
+def scene(light=(2.0, 3.0, 5.0)):
     b = rt.SceneBuilder("classic", width=W, height=H, spp=256, max_depth=0, background=(0.2, 0.2, 0.25))
     b.camera(position=(0, 0, 5), look_at=(0, 0, 0), fov=30)
-    b.light((2, 3, 5), intensity=(0.8, 0.8, 0.8))
+    b.light(light, intensity=(0.8, 0.8, 0.8))
     b.material("red", color=(0.8, 0.3, 0.2), specular=0.3, shininess=20)
     b.sphere((0.1, 0.05, 0), 0.8, "red")
     return b.build(dtype=jnp.float64)
@@ -55,9 +55,10 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.01, help="FD step, world units (~0.02 pixel)")
     ap.add_argument("--spp", default="64,256,1024", help="edge-gradient sample counts")
+    ap.add_argument("--light", default="2,3,5", help="light position (0,0,5: at the camera, no terminator in view)")
     a = ap.parse_args()
 
-    s0 = scene()
+    s0 = scene(tuple(float(v) for v in a.light.split(",")))
     R = jnp.asarray(smooth_weights(H, W))
     c0 = rt.parameters(s0)["object[0].center"]
 

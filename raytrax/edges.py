@@ -903,13 +903,17 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             jump_ok = jump_ok & (vis | sh)
         # A shadow edge's jump is that of its light's contribution alone; one compiled
         # trace, mapped over the lights and then everything (index L).
-        fl = jax.lax.map(lambda k: radiance_at(jnp.concatenate([probes, inner], 1), k),
-                         jnp.arange(L + 1))  # (L + 1, 4E, 3)
+        # One compiled trace of the radiance, mapped over the probes with each light, the
+        # probes with everything (index L), and the inner rays with everything.
+        # (Without spheres there are no inner rays.)
+        pts = [probes] * (L + 1) + ([inner] if ns else [])
+        fl = jax.lax.map(lambda a: radiance_at(a[0], a[1]),
+                         (jnp.stack(pts), jnp.arange(len(pts)).clip(max=L)))
         which = jnp.where(vis, L, c["k"])
-        fr = jnp.take_along_axis(fl[:, :2 * E], jnp.concatenate([which, which])[None, :, None], 0)[0]
+        fr = jnp.take_along_axis(fl[:L + 1], jnp.concatenate([which, which])[None, :, None], 0)[0]
         # f = f_s + A sqrt(q) + B q at q = 1/256, 1/16, 1/4 (distance inside over h)
         f0 = jnp.where(in_b[:, None], fr[E:], fr[:E])
-        f1, f2 = fl[L, 2 * E:3 * E], fl[L, 3 * E:]
+        f1, f2 = (fl[L + 1, :E], fl[L + 1, E:]) if ns else (f0, f0)
         A = ((f1 - f0) * (15.0 / 64.0 - 1.0 / 256.0) - (f2 - f0) * (1.0 / 16.0 - 1.0 / 256.0)) \
             / ((0.25 - 1.0 / 16.0) * (15.0 / 64.0 - 1.0 / 256.0) - (0.5 - 1.0 / 16.0) * (1.0 / 16.0 - 1.0 / 256.0))
         A = jnp.where(sil[:, None] & jnp.isfinite(A), A, 0.0)
