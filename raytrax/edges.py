@@ -621,11 +621,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     number of sample pairs with an edge between them.
 
     ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
-    through image positions ``xy`` (with ``light``: that light's contribution
-    alone), treated as a constant. The jump ``f_minus - f_plus`` is measured by probe
-    rays just on either side of the edge point (``1/256`` of the sample spacing
-    away for visibility edges, 0.03 pixel for shadow edges), where the probes
-    see the same as the two samples (else the crossing adds nothing).
+    through image positions ``xy`` (with ``light (M,)``: per ray, that light's
+    contribution alone, or everything at index ``L``), treated as a constant. The
+    jump ``f_minus - f_plus`` is measured by probe rays just on either side of the
+    edge point (``1/256`` of the sample spacing away for visibility edges, 0.03
+    pixel for shadow edges), where the probes see the same as the two samples
+    (else the crossing adds nothing).
     """
     n = eo.samples
     D = eo.depth
@@ -903,17 +904,16 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             jump_ok = jump_ok & (vis | sh)
         # A shadow edge's jump is that of its light's contribution alone; one compiled
         # trace, mapped over the lights and then everything (index L).
-        # One compiled trace of the radiance, mapped over the probes with each light, the
-        # probes with everything (index L), and the inner rays with everything.
-        # (Without spheres there are no inner rays.)
-        pts = [probes] * (L + 1) + ([inner] if ns else [])
-        fl = jax.lax.map(lambda a: radiance_at(a[0], a[1]),
-                         (jnp.stack(pts), jnp.arange(len(pts)).clip(max=L)))
+        # One trace of each ray: the probes with their light (index L: everything), and
+        # without spheres no inner rays.
         which = jnp.where(vis, L, c["k"])
-        fr = jnp.take_along_axis(fl[:L + 1], jnp.concatenate([which, which])[None, :, None], 0)[0]
+        pts = jnp.concatenate([probes, inner], 1) if ns else probes
+        sel = jnp.concatenate([which, which] + ([jnp.full((2 * E,), L, jnp.int32)] if ns else []))
+        fl = radiance_at(pts, sel)
+        fr = fl[:2 * E]
         # f = f_s + A sqrt(q) + B q at q = 1/256, 1/16, 1/4 (distance inside over h)
         f0 = jnp.where(in_b[:, None], fr[E:], fr[:E])
-        f1, f2 = (fl[L + 1, :E], fl[L + 1, E:]) if ns else (f0, f0)
+        f1, f2 = (fl[2 * E:3 * E], fl[3 * E:]) if ns else (f0, f0)
         A = ((f1 - f0) * (15.0 / 64.0 - 1.0 / 256.0) - (f2 - f0) * (1.0 / 16.0 - 1.0 / 256.0)) \
             / ((0.25 - 1.0 / 16.0) * (15.0 / 64.0 - 1.0 / 256.0) - (0.5 - 1.0 / 16.0) * (1.0 / 16.0 - 1.0 / 256.0))
         A = jnp.where(sil[:, None] & jnp.isfinite(A), A, 0.0)

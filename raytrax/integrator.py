@@ -33,8 +33,7 @@ from . import textures as tx
 from .camera import primary_rays, rays_through
 from .intersect import closest_hit, occluder_counts, prepare
 from .materials import fresnel_dielectric, refract
-from .lights import PointLights
-from .scene import Environment, Scene, Settings
+from .scene import Scene, Settings
 
 RAYS_PER_TILE = 16384
 SUBTILE = 4096
@@ -131,12 +130,14 @@ def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
     return color
 
 
-def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool):
+def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool, sel=None):
     """Intersect and shade rays ``o, d (3, n)`` with throughput ``w (3, n)``.
 
     Returns the radiance they contribute ``(3, n)`` and their reflected and
     refracted children (origin, direction, throughput) plus the cone width at
-    the hit (for the children's texture footprints).
+    the hit (for the children's texture footprints). ``sel (n,)`` (optional, no
+    gradient): per ray, the one light whose contribution it carries (``l`` below
+    the number of lights; no ambient, no background), or everything (``>= L``).
     """
     st = opts.settings
     mats = scene.materials
@@ -173,6 +174,9 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     L = scene.lights.position.shape[0]
     n = o.shape[1]
     local = jnp.zeros_like(o)
+
+    def on(l):  # (n,) 1 where ray carries light l (l = L: ambient and background)
+        return 1.0 if sel is None else ((sel == l) | (sel >= L)).astype(dt)
     if L:
         # One light at a time on (n,) / (3, n) arrays: no (3, L, n) broadcasts and no
         # reductions over short axes (XLA:CPU runs those, and their transposes, slowly).
@@ -183,7 +187,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
             dist.append(V.norm(v))
             ldir.append(V.normalize(v))
             cosl.append(V.dot(n_s, ldir[l]))
-            lit.append((cosl[l] > 0) & valid)
+            lit.append((cosl[l] > 0) & valid & (True if sel is None else (sel == l) | (sel >= L)))
         M = mats.color.shape[0]
         I = scene.lights.intensity
         classic = st.shading == "classic"
@@ -221,16 +225,16 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
                 diff = diffuse * jnp.maximum(cosl[l], 0.0)
                 rv = V.dot(V.reflect(-ldir[l], n_s), -d)
                 spec = jnp.where(lit[l], specular * V.safe_pow(rv, shininess), 0.0)
-                s = trans * jnp.where(lit[l], 1.0, 0.0)
+                s = trans * jnp.where(lit[l], 1.0, 0.0) * on(l)
                 local = local + I[l][:, None] * s[None] * (diff[None] * color + spec[None])
             else:
                 vis = jnp.logical_not(sh) & lit[l]
-                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0)
+                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0) * on(l)
                 E = E + I[l][:, None] * g[None]
         if not classic:
             local = ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * E
     if st.shading == "classic":
-        local = local + env.ambient[:, None] * (rows["ambient"] * (1.0 - T))[None] * color
+        local = local + env.ambient[:, None] * (rows["ambient"] * (1.0 - T) * on(L))[None] * color
 
     # --- specular children -------------------------------------------------
     eta = jnp.where(front, V.safe_div(1.0, ior), ior)
@@ -247,7 +251,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     vm = valid[None]
     wr = jnp.where(vm, w * wr, 0.0)
     wt = jnp.where(vm, w * wt, 0.0)
-    bg = env.background[:, None]
+    bg = env.background[:, None] if sel is None else env.background[:, None] * on(L)[None]
     contrib = jnp.where(vm, w * local, w * bg)
     # After the last allowed specular interaction, specular children see the background.
     contrib = contrib + jnp.where(last, 1.0, 0.0).astype(dt) * (wr + wt) * bg
@@ -358,8 +362,8 @@ def _top_branches(kids, B, n):
     return g(co), g(cd), g(cwt), g(ccw[None])[0]
 
 
-def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions):
-    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)``.
+def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
+    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)`` (``sel (n,)``: see :func:`_shade`).
 
     Every depth runs the same compiled body (a ``lax.scan`` over depth) on a
     fixed buffer of ``branches`` rays per camera sample; slots without weight
@@ -372,17 +376,21 @@ def _trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions):
     pad = lambda a, fill: jnp.concatenate([a] + [jnp.full_like(a, fill)] * (B - 1), -1)
     w = pad(jnp.ones_like(o), 0.0)
     state = (pad(o, 0.0), pad(d, 0.0), w, jnp.zeros((B * n,), dt))
+    # A ray's children stay in its sample's column of the (B, n) slots: ``sel`` is
+    # the same for all of them.
+    sel_b = None if sel is None else jnp.tile(sel, B)
 
     def body(carry, depth):
         (o_, d_, w_, cw_), radiance = carry
         last = depth == st.max_depth
 
         @functools.partial(jax.checkpoint, policy=_SHADE_POLICY)
-        def fn(a, b, c, e):
-            return _shade(scene, kinds, a, b, c, e, spread, opts, last)
+        def fn(a, b, c, e, *f):
+            return _shade(scene, kinds, a, b, c, e, spread, opts, last, *f)
 
         active = jnp.any(w_ > 0, 0)
-        contrib, kids = _compact_map(fn, (o_, d_, w_, cw_), active, opts.subtile)
+        args = (o_, d_, w_, cw_) + (() if sel is None else (sel_b,))
+        contrib, kids = _compact_map(fn, args, active, opts.subtile)
         radiance = radiance + contrib.reshape(3, B, n).sum(1)
         return (_top_branches(kids, B, n), radiance), None
 
@@ -426,14 +434,18 @@ def _render(scene: Scene, opts: RenderOptions, key):
 _render_jit = eqx.filter_jit(_render)
 
 
-def _map_positions(fn, xy, chunk: int):
-    """``fn(xy_chunk (2, c)) -> (c, k)`` over image positions ``xy (2, M)`` in chunks
-    of at most ``chunk`` (``lax.map``; the last chunk is padded); returns ``(M, k)``."""
+def _map_positions(fn, xy, chunk: int, sel=None):
+    """``fn(xy_chunk (2, c), sel_chunk (c,) or None) -> (c, k)`` over image positions
+    ``xy (2, M)`` (and per-position ``sel (M,)``) in chunks of at most ``chunk``
+    (``lax.map``; the last chunk is padded); returns ``(M, k)``."""
     M = xy.shape[1]
     c = max(1, min(M, chunk))
     nc = math.ceil(M / c)
     xyc = jnp.pad(xy, ((0, 0), (0, nc * c - M)), mode="edge").reshape(2, nc, c).transpose(1, 0, 2)
-    out = jax.lax.map(fn, xyc)
+    if sel is None:
+        out = jax.lax.map(lambda x: fn(x, None), xyc)
+    else:
+        out = jax.lax.map(lambda a: fn(*a), (xyc, jnp.pad(sel, (0, nc * c - M), mode="edge").reshape(nc, c)))
     return out.reshape((nc * c,) + out.shape[2:])[:M]
 
 
@@ -444,28 +456,21 @@ def _spread(scene: Scene, opts: RenderOptions, n: int):
 
 def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
-    gradient; the jump across an edge). With ``light`` (an index, may be traced)
-    below the number of lights: only what that light contributes, through every
-    specular path (no ambient, no background, the other lights off); at or above
-    it, everything."""
+    gradient; the jump across an edge). ``light`` (an index or ``(M,)`` indices, may
+    be traced): where below the number of lights, only what that light contributes,
+    through every specular path (no ambient, no background, the other lights off);
+    at or above it, everything. One trace of each ray whatever the indices."""
     st = opts.settings
     scene = jax.lax.stop_gradient(scene)
-    if light is not None:
-        L = scene.lights.position.shape[0]
-        every = light >= L
-        on = ((jnp.arange(L) == light) | every).astype(scene.dtype)
-        env = every.astype(scene.dtype)
-        scene = dataclasses.replace(
-            scene, lights=PointLights(scene.lights.position, scene.lights.intensity * on[:, None]),
-            environment=Environment(scene.environment.background * env, scene.environment.ambient * env))
+    sel = None if light is None else jnp.broadcast_to(jnp.asarray(light, jnp.int32), xy.shape[1:])
     spread = _spread(scene, opts, n)
     kinds = prepare(scene)
 
-    def one(x):
+    def one(x, s):
         o, d = rays_through(scene.camera, x, st.width, st.height)
-        return _trace(scene, kinds, o, d, spread, opts).T
+        return _trace(scene, kinds, o, d, spread, opts, s).T
 
-    return _map_positions(one, xy, opts.tile_rays // st.branches)
+    return _map_positions(one, xy, opts.tile_rays // st.branches, sel)
 
 
 def _render_edges(scene: Scene, opts: RenderOptions, eo):

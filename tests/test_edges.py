@@ -188,6 +188,42 @@ def test_known_misses_within_5_percent():
     assert not bad, f"off by more than 5 % in {bad}:\n{_table_text(t)}"
 
 
+def test_probe_radiance_per_light_matches_renders_with_one_light_on():
+    """The probes' radiance (one trace per ray, each ray carrying one light's
+    contribution or everything) against renders of the same scene with only that
+    light on and no ambient or background (classic and physical shading, a mirror
+    so that the light also arrives along reflected paths)."""
+    from raytrax.integrator import RenderOptions, _radiance_at
+
+    for shading in ("classic", "physical"):
+        b = rt.SceneBuilder(shading, width=4, height=3, spp=1, max_depth=1, background=(0.3, 0.2, 0.1),
+                            ambient=(0.2, 0.25, 0.3))
+        b.camera(position=(0, 1, 5), look_at=(0, 0.3, 0), fov=40)
+        b.light((2, 4, 3), intensity=(9.0, 8.0, 7.0) if shading == "physical" else (0.7, 0.6, 0.5))
+        b.light((-3, 3, 1), intensity=(4.0, 5.0, 6.0) if shading == "physical" else (0.3, 0.4, 0.5))
+        b.material("floor", color=(0.8, 0.8, 0.7))
+        b.material("mirror", color=(0.1, 0.1, 0.1), reflectivity=0.6)
+        b.plane((0, 0, 0), (0, 1, 0), "floor")
+        b.sphere((0.3, 0.6, 0), 0.6, "mirror")
+        s = b.build(jnp.float64)
+        jj, ii = np.meshgrid(np.arange(4) + 0.5, np.arange(3) + 0.5)
+        xy = jnp.asarray(np.stack([jj.ravel(), ii.ravel()]))  # pixel centres, row-major
+        opts = RenderOptions(settings=s.settings)
+        sel = jnp.asarray([0, 1, 2, 2, 1, 0, 0, 1, 2, 1, 2, 0], jnp.int32)  # 2: everything
+        got = np.asarray(_radiance_at(s, opts, xy, 1, sel))
+        for k in range(3):
+            q = {"render.background": jnp.zeros(3), "render.ambient": jnp.zeros(3)} if k < 2 else {}
+            if k < 2:
+                q[f"light[{1 - k}].intensity"] = jnp.zeros(3)
+            want = np.asarray(rt.render(rt.with_parameters(s, q))).reshape(-1, 3)
+            m = np.asarray(sel) == k
+            assert np.allclose(got[m], want[m], rtol=1e-12, atol=1e-14), (shading, k, got[m], want[m])
+        # Not trivially equal: light 0 alone lights most of its pixels, and less than everything.
+        m0 = np.asarray(sel) == 0
+        full = np.asarray(rt.render(s)).reshape(-1, 3)
+        assert np.count_nonzero(got[m0].sum(1)) >= 3 and np.all(got[m0] < full[m0]), (got[m0], full[m0])
+
+
 # ---------------------------------------------------------------------------
 # A lone sphere: the silhouette's square-root behaviour (edges.py, step 6).
 # ---------------------------------------------------------------------------
