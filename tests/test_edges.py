@@ -233,10 +233,10 @@ LW, LH = 8, 6
 
 def test_lone_sphere_centre_against_jittered_differences():
     """A Phong sphere lit from the camera (the terminator is the silhouette, so the
-    radiance beside it is exactly ``f_s + a sqrt(distance)``). Reference: central
+    radiance beside it is ``f_s + a sqrt(distance)`` to leading order). Reference: central
     differences of jittered renders (spp 4096, step 0.01, the same key on both
     sides) averaged over 32 keys, each an unbiased estimate of the pixel-integrated
-    derivative: standard error 0.3 % of each component
+    derivative: standard errors 0.3 %, 0.3 % and 0.9 % of the components
     (``benchmarks/bench_sphere_edges.py --light 0,0,5`` prints it). Measured edge
     errors at spp 256: -0.1 %, +0.1 %, -0.4 %; without the silhouette correction
     the grid's error on the interior term alone is 12 % of the x component."""
