@@ -55,10 +55,20 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.01, help="FD step, world units (~0.02 pixel)")
     ap.add_argument("--spp", default="64,256,1024", help="edge-gradient sample counts")
-    ap.add_argument("--light", default="2,3,5", help="light position (0,0,5: at the camera, no terminator in view)")
+    def xyz(text):
+        try:
+            v = tuple(float(c) for c in text.split(","))
+        except ValueError:
+            v = ()
+        if len(v) != 3:
+            raise argparse.ArgumentTypeError(f"expected three numbers x,y,z, got {text!r}")
+        return v
+
+    ap.add_argument("--light", type=xyz, default=(2.0, 3.0, 5.0),
+                    help="light position x,y,z (0,0,5: at the camera, no terminator in view)")
     a = ap.parse_args()
 
-    s0 = scene(tuple(float(v) for v in a.light.split(",")))
+    s0 = scene(a.light)
     R = jnp.asarray(smooth_weights(H, W))
     c0 = rt.parameters(s0)["object[0].center"]
 

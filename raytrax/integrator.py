@@ -175,8 +175,8 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     n = o.shape[1]
     local = jnp.zeros_like(o)
 
-    def on(l):  # (n,) 1 where ray carries light l (l = L: ambient and background)
-        return 1.0 if sel is None else ((sel == l) | (sel >= L)).astype(dt)
+    def carries(l):  # (n,) rays that carry light l (l = L: ambient and background), or None: all
+        return None if sel is None else (sel == l) | (sel >= L)
     if L:
         # One light at a time on (n,) / (3, n) arrays: no (3, L, n) broadcasts and no
         # reductions over short axes (XLA:CPU runs those, and their transposes, slowly).
@@ -187,7 +187,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
             dist.append(V.norm(v))
             ldir.append(V.normalize(v))
             cosl.append(V.dot(n_s, ldir[l]))
-            lit.append((cosl[l] > 0) & valid & (True if sel is None else (sel == l) | (sel >= L)))
+            lit.append((cosl[l] > 0) & valid & (True if sel is None else carries(l)))
         M = mats.color.shape[0]
         I = scene.lights.intensity
         classic = st.shading == "classic"
@@ -225,16 +225,20 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
                 diff = diffuse * jnp.maximum(cosl[l], 0.0)
                 rv = V.dot(V.reflect(-ldir[l], n_s), -d)
                 spec = jnp.where(lit[l], specular * V.safe_pow(rv, shininess), 0.0)
-                s = trans * jnp.where(lit[l], 1.0, 0.0) * on(l)
+                s = trans * jnp.where(lit[l], 1.0, 0.0)
                 local = local + I[l][:, None] * s[None] * (diff[None] * color + spec[None])
             else:
                 vis = jnp.logical_not(sh) & lit[l]
-                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0) * on(l)
+                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0)
                 E = E + I[l][:, None] * g[None]
         if not classic:
             local = ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * E
+    amb, bg = env.ambient[:, None], env.background[:, None]
+    if sel is not None:  # lit[l] above leaves out the lights a ray does not carry
+        env_on = carries(L).astype(dt)[None]
+        amb, bg = amb * env_on, bg * env_on
     if st.shading == "classic":
-        local = local + env.ambient[:, None] * (rows["ambient"] * (1.0 - T) * on(L))[None] * color
+        local = local + amb * (rows["ambient"] * (1.0 - T))[None] * color
 
     # --- specular children -------------------------------------------------
     eta = jnp.where(front, V.safe_div(1.0, ior), ior)
@@ -251,7 +255,6 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     vm = valid[None]
     wr = jnp.where(vm, w * wr, 0.0)
     wt = jnp.where(vm, w * wt, 0.0)
-    bg = env.background[:, None] if sel is None else env.background[:, None] * on(L)[None]
     contrib = jnp.where(vm, w * local, w * bg)
     # After the last allowed specular interaction, specular children see the background.
     contrib = contrib + jnp.where(last, 1.0, 0.0).astype(dt) * (wr + wt) * bg
