@@ -89,8 +89,9 @@ Method (analytic edge functions found between neighbouring samples; see
    ``sqrt(h) zeta(1/2, phi)`` (Hurwitz zeta), so each crossing adds
    ``w ell a zeta(1/2, phi) g(x_s, theta) / (2 |g_dir|)`` to the inside
    sample's pixel. Without both, a lone sphere's vertical centre gradient
-   (``benchmarks/bench_sphere_edges.py``) is 14 % off at spp 256 and at 1024;
-   with them, 1.2 % and 0.4 %.
+   is 14 % off at spp 256 and at 1024; with them, 1.2 % and 0.4 % (see
+   ``docs/gradients.md``; ``benchmarks/bench_sphere_edges.py`` measures the
+   sphere of ``scenes/edge_sphere.toml``).
 
 The estimate converges to the derivative of the pixel integral as ``n`` grows.
 What it does not include: edges along the non-dominant specular branch (the
