@@ -84,14 +84,22 @@ Method (analytic edge functions found between neighbouring samples; see
    fitted to it and to two more rays 1/16 and 1/4 of the spacing inside; and
    the interior term of the samples (plain AD), which has the integrable
    singularity ``d t_hit / d theta = g_theta / (2 sqrt(-g))`` there, is
-   corrected for the grid's error on it: a row whose first inside sample lies
-   ``phi h`` from the edge sums ``s^(-1/2)`` with the error
-   ``sqrt(h) zeta(1/2, phi)`` (Hurwitz zeta), so each crossing adds
-   ``w ell a zeta(1/2, phi) g(x_s, theta) / (2 |g_dir|)`` to the inside
-   sample's pixel. Without both, a lone sphere's vertical centre gradient
-   is 14 % off at spp 256 and at 1024; with them, 1.2 % and 0.4 % (see
-   ``docs/gradients.md``; ``benchmarks/bench_sphere_edges.py`` measures the
-   sphere of ``scenes/edge_sphere.toml``).
+   integrated better than the grid does: along each crossing row, the first
+   two inside samples (at ``k + phi`` spacings from the edge) are replaced by
+   the integral of the samples' derivative from the edge to ``1.5 + phi``,
+   by 6-point Gauss-Legendre in ``u = sqrt(distance)``, where the singularity
+   is smooth and a terminator's kink just inside (where the radiance starts
+   to grow like ``sqrt(distance - d_k)``) is a kink, not a singularity. These
+   are 8 differentiable camera rays per silhouette crossing, traced as the
+   grid's samples are, weighted by the crossing's row weight and piece length
+   (value zero: the nodes minus the samples they replace, minus its own
+   stop-gradient). A row's error on the singular term, ``sqrt(h) zeta(1/2,
+   phi)`` (Hurwitz zeta) per unit of ``a``, has a sign that depends on where
+   the samples fall, so on a grid it adds up along a silhouette instead of
+   averaging out. Without both, a lone sphere's vertical centre gradient is
+   14 % off at spp 256 and at 1024 (see ``docs/gradients.md``;
+   ``benchmarks/bench_sphere_edges.py`` measures the sphere of
+   ``scenes/edge_sphere.toml``).
 
 The estimate converges to the derivative of the pixel integral as ``n`` grows.
 What it does not include: edges along the non-dominant specular branch (the
@@ -126,6 +134,8 @@ BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
 NEWTON_STEPS = 3  # following an edge to the neighbouring row
 CHUNK = 512  # events solved per step of the (skippable) chunk loop
+QUAD_SAMPLES = 2  # inside samples of a sphere's silhouette row replaced by a quadrature
+QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
 MAX_FACES = 6
 
 
@@ -612,16 +622,7 @@ def _pixel_of(x, width, height):
     return py * width + px
 
 
-def _zeta_half(a):
-    """Hurwitz zeta ``zeta(1/2, a)`` for ``a`` in ``(0, 1]`` (Euler-Maclaurin after six
-    terms; absolute error below 1e-7): ``sum_(k<N) (k + a)^(-1/2) - 2 sqrt(N + a - 1/2)``
-    as ``N -> inf``, the error of the midpoint rule on ``s^(-1/2)`` with nodes ``k + a``."""
-    x = a + 6.0
-    head = sum((a + k) ** -0.5 for k in range(6))
-    return head - 2.0 * jnp.sqrt(x) + 0.5 * x ** -0.5 + x ** -1.5 / 24.0 - (1.875 / 720.0) * x ** -3.5
-
-
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
     whose derivative with respect to ``scene`` is the edge contribution, and the
     number of sample pairs with an edge between them.
@@ -802,13 +803,10 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         frac = jnp.where(vis, 1.0 / 256.0, jnp.maximum(1.0 / 256.0, jnp.minimum(0.45, 0.03 * n)))
         u = (xb - xa) * frac[None]
         probes = jnp.concatenate([xs - u, xs + u], 1)
-        # A sphere's silhouette: there the samples' own derivative (the interior term)
-        # has an integrable singularity, d(t_hit)/dtheta = g_theta / (2 sqrt(-g)), which
-        # a row of samples at distances (k + phi) h from the edge integrates with the
-        # error -a g_theta sqrt(h) zeta(1/2, phi) / (2 |g_a|) (a: the coefficient of
-        # sqrt(distance) in the radiance beside the edge). It is subtracted below;
-        # ``a`` comes from the inside probe and two more rays 1/16 and 1/4 of the
-        # spacing inside.
+        # A sphere's silhouette: the radiance beside it is f_s + a sqrt(distance); the
+        # inside probe is extrapolated to the edge with ``a``, fitted from it and two
+        # more rays 1/16 and 1/4 of the spacing inside (phi h: the first inside
+        # sample's distance from the edge; step 6 of the module docstring).
         sil = vis & (ev.typ == MISS) & (ev.p1 < ns)
         in_b = case2  # the sphere is on the second sample's side
         t_s = 0.5 * (lo[:E] + hi[:E])
@@ -942,13 +940,29 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
         coef = -df * (jnp.sign(ga) * wgt * (e_m + e_p))[:, None]
         coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
-        # The sphere-silhouette correction of the interior term, in the inside sample's
-        # pixel (where nearly all of that row's error lies).
-        cz = (sgn * wgt * (e_m + e_p) * 0.5 * _zeta_half(phi))[:, None] * A
-        cz = jnp.where((ok & sil & jump_ok)[:, None] & jnp.isfinite(cz), cz, 0.0)
-        pin = _pixel_of(jnp.where(in_b[None], xb, xa), width, height)
         out = {"typ": ev.typ, "p1": ev.p1, "p2": ev.p2, "sign": ev.sign, "xs": xs, "coef": coef.T, "pix": pix,
-               "wts": wts, "ok": ok, "cz": cz.T, "pin": pin}
+               "wts": wts, "ok": ok}
+        if ns:
+            # A sphere's silhouette: the first QUAD_SAMPLES inside samples of the row (at
+            # t = k + phi spacings from the edge) are replaced by the integral of the
+            # samples' derivative over [0, QUAD_SAMPLES - 1/2 + phi], by Gauss-Legendre
+            # in u = sqrt(t): the 1/sqrt(t) singularity becomes smooth in u, and what
+            # grows like sqrt(t - t_k) after a terminator's kink piecewise smooth. The
+            # rows' weights and piece lengths are the edge term's; it goes to the inside
+            # sample's pixel (a shift of at most QUAD_SAMPLES samples).
+            T = QUAD_SAMPLES - 0.5 + phi
+            xi, wi = (jnp.asarray(v, dt) for v in np.polynomial.legendre.leggauss(QUAD_NODES))
+            xi, wi = 0.5 * (xi + 1.0), 0.5 * wi
+            tq = T[None] * xi[:, None] ** 2  # (Q, E)
+            wq = 2.0 * T[None] * (xi * wi)[:, None]
+            tk = jnp.arange(QUAD_SAMPLES, dtype=dt)[:, None] + phi[None]
+            ww = jnp.concatenate([wq, -jnp.ones_like(tk)])
+            x0 = jnp.where(in_b[None], xb, xa)  # the first inside sample, exactly on the grid
+            qx = jnp.concatenate([xs[:, None, :] + tq[None] * step_in[:, None, :],
+                                  x0[:, None, :] + (tk - phi[None])[None] * step_in[:, None, :]], 1)  # (2, Q+K, E)
+            scale = (V.safe_div(a4, a4 + c4) * (e_m + e_p) * h)[None]
+            qw = jnp.where((ok & sil & jump_ok)[None] & jnp.isfinite(scale), ww * scale, 0.0)
+            out["qx"], out["qw"], out["pin"] = qx, qw, _pixel_of(x0, width, height)
         return out
 
     def chunked(x):  # (..., K) -> (nc, ..., C)
@@ -969,7 +983,27 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     img = jnp.zeros((height * width, 3), term.dtype)
     for j in range(3):
         img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])
-    img = img.at[res["pin"]].add(res["cz"].T * g[:, None])
+    if "qx" in res:
+        # The differentiable rays of the silhouette quadrature, live crossings first, in
+        # chunks of C crossings; a chunk without one is skipped.
+        live_q = jnp.any(res["qw"] != 0, 0)
+        order = jnp.argsort(~live_q, stable=True)
+        Q = res["qw"].shape[0]
+        qx = jnp.moveaxis(res["qx"][:, :, order].reshape(2, Q, nc, C), 2, 0)  # (nc, 2, Q, C)
+        qw = jnp.moveaxis(res["qw"][:, order].reshape(Q, nc, C), 1, 0)  # (nc, Q, C)
+
+        def quad(args):
+            x, w = args
+
+            def run(_):
+                f = radiance_grad(x.reshape(2, -1)).reshape(Q, C, 3)
+                return jnp.sum(w[..., None] * f, 0)
+
+            # Rematerialised in the backward pass: the residuals of every chunk's rays
+            # would otherwise be kept (+50 % of the edge mode's memory).
+            return jax.lax.cond(jnp.any(w != 0), jax.checkpoint(run), lambda _: jnp.zeros((C, 3), dt), None)
+
+        img = img.at[res["pin"][order]].add(jax.lax.map(quad, (qx, qw)).reshape(K, 3))
     img = eqx.error_if(img, count > budget, f"edge_gradients: more sample pairs straddle an edge than "
                                             f"edge_budget={budget}; pass a larger edge_budget to render")
     img = img - jax.lax.stop_gradient(img)

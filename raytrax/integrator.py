@@ -457,14 +457,15 @@ def _spread(scene: Scene, opts: RenderOptions, n: int):
     return 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / opts.settings.height / n
 
 
-def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None):
+def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
-    gradient; the jump across an edge). ``light`` (an index or ``(M,)`` indices, may
-    be traced): where below the number of lights, only what that light contributes,
-    through every specular path (no ambient, no background, the other lights off);
-    at or above it, everything. One trace of each ray whatever the indices."""
+    gradient unless ``grad``; the jump across an edge). ``light`` (an index or ``(M,)``
+    indices, may be traced): where below the number of lights, only what that light
+    contributes, through every specular path (no ambient, no background, the other
+    lights off); at or above it, everything. One trace of each ray whatever the indices."""
     st = opts.settings
-    scene = jax.lax.stop_gradient(scene)
+    if not grad:
+        scene = jax.lax.stop_gradient(scene)
     sel = None if light is None else jnp.broadcast_to(jnp.asarray(light, jnp.int32), xy.shape[1:])
     spread = _spread(scene, opts, n)
     kinds = prepare(scene)
@@ -492,7 +493,9 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
     # where the pattern changes beside the edge: the derivative the estimate converges
     # to is that of the image as the samples grow, where the filter width goes to 0.
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
-    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, hard, xy, n, light))
+    grid_at = dataclasses.replace(opts, jitter=False)  # camera rays shaded as the grid's samples
+    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, hard, xy, n, light),
+                        lambda xy: _radiance_at(scene, grid_at, xy, n, grad=True))
     return img + edge
 
 
