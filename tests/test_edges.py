@@ -252,9 +252,10 @@ def test_sphere_centre_and_radius_over_a_textured_wall():
     The silhouette's extreme points and the checker's lines are kept 0.25 pixel or
     more from pixel boundaries and from each other (3 steps): where one is tangent
     to the other, the pixel-integrated derivative goes as ``sqrt(distance)`` and no
-    finite step converges. Measured edge errors: -3.2 % (x, 6 % of the gradient's
-    norm; the terminator's kink beside the silhouette), +0.9 %, -0.5 %, +0.6 %;
-    plain AD is off by 79 % or more in every component (-174, +79, +121, +134 %)."""
+    finite step converges. Measured edge errors: +0.8 %, +0.6 %, -0.6 %, +0.3 %
+    (x, 6 % of the gradient's norm, was -3.2 % with the asymptotic silhouette
+    correction, which a terminator just inside the silhouette breaks); plain AD is
+    off by 79 % or more in every component (-174, +79, +121, +134 %)."""
     s0 = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_sphere.toml"),
                        dtype=jnp.float64)
     h, w_ = s0.settings.height, s0.settings.width
