@@ -168,10 +168,8 @@ def _table_text(t):
 
 # Known miss at spp 256 (see docs/gradients.md): the sphere centre's x component is 3 % of the
 # largest centre component; jittered central differences put it at 0.000285 +- 0.000009 (the grid
-# reference here says 0.00033). The edge estimate converges to it slowly, its error going as
-# h^0.66 (-61, -38, -29, -24 % at spp 256, 1024, 2304, 4096; Richardson extrapolation +0.000282:
-# benchmarks/bench_edge_convergence.py), most likely from the terminators' kinks inside this
-# 3-pixel silhouette.
+# reference here says 0.00033). The edge estimate comes down with the samples, slowly and not
+# smoothly: -59, -51, -21, -31 % at spp 256, 1024, 2304, 4096 (benchmarks/bench_edge_convergence.py).
 KNOWN = {("center", 0)}
 
 
@@ -186,7 +184,7 @@ def test_edge_gradients_match_finite_differences_where_plain_ad_does_not():
 
 
 @pytest.mark.xfail(reason="known miss at spp 256: the sphere centre's x (3 % of its largest component; "
-                          "converges as h^0.66, -24 % at spp 4096); see docs/gradients.md", strict=False)
+                          "-31 % at spp 4096); see docs/gradients.md", strict=False)
 def test_known_misses_within_5_percent():
     t = _occ_table()
     bad = [k for k in KNOWN if abs(t[k][1] - t[k][0]) > RTOL * abs(t[k][0])]
