@@ -633,7 +633,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
     jump ``f_minus - f_plus`` is measured by probe rays just on either side of the
     edge point (``1/256`` of the sample spacing away for visibility edges, 0.03
     pixel for shadow edges), where the probes see the same as the two samples
-    (else the crossing adds nothing).
+    (else the crossing adds nothing). ``radiance_grad(xy (2, M)) -> (M, 3)``: the
+    same rays shaded as the grid's samples are, differentiable with respect to
+    ``scene`` (the silhouette quadrature of step 6).
     """
     n = eo.samples
     D = eo.depth
