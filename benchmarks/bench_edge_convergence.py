@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
 from raytrax.testing import smooth_weights  # noqa: E402
+from scenes import spp_list  # noqa: E402
 
 SCENE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "edge_occluders.toml")
 
@@ -42,7 +43,7 @@ def main():
     ap.add_argument("--keys", type=int, default=128, help="jitter keys averaged by the reference")
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.03, help="FD step, world units (~0.1 pixel)")
-    ap.add_argument("--spp", default="256,1024,2304,4096", help="edge-gradient sample counts (square numbers)")
+    ap.add_argument("--spp", type=spp_list, default=[256, 1024, 2304, 4096], help="edge-gradient sample counts (square numbers)")
     a = ap.parse_args()
 
     s0 = rt.load_scene(SCENE, dtype=jnp.float64)
@@ -63,7 +64,7 @@ def main():
     print(f"{'spp':>5}  {'h (pixel)':>9}  {'edge gradient':>13}  {'error':>9}  {'relative':>8}")
     hs, errs = [], []
     zero = jnp.asarray(0.0, jnp.float64)
-    for spp in (int(v) for v in a.spp.split(",")):
+    for spp in a.spp:
         g = float(jax.grad(lambda t: loss(t, spp=spp, edge_gradients=True))(zero))
         h = 1.0 / np.sqrt(spp)
         hs.append(h)
@@ -75,7 +76,7 @@ def main():
         # Richardson extrapolation from the two finest grids with that order.
         r = (hs[-2] / hs[-1]) ** p
         g1, g2 = errs[-2] + ref, errs[-1] + ref
-        print(f"extrapolated to h = 0 from spp {a.spp.split(',')[-2]} and {a.spp.split(',')[-1]}: "
+        print(f"extrapolated to h = 0 from spp {a.spp[-2]} and {a.spp[-1]}: "
               f"{(r * g2 - g1) / (r - 1):+.6f} (reference {ref:+.6f} +- {se:.6f})")
     else:
         print("order of convergence: not fitted (an error is within two standard errors of the reference)")

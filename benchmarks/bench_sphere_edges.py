@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
 from raytrax.testing import smooth_weights  # noqa: E402
+from scenes import spp_list  # noqa: E402
 
 SCENE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "edge_sphere.toml")
 NAMES = ("x", "y", "z", "radius")
@@ -49,7 +50,7 @@ def main():
     ap.add_argument("--keys", type=int, default=64, help="jitter keys averaged by the reference")
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.02, help="FD step, world units (~0.045 pixel)")
-    ap.add_argument("--spp", default="64,256,1024", help="edge-gradient sample counts")
+    ap.add_argument("--spp", type=spp_list, default=[64, 256, 1024], help="edge-gradient sample counts")
     def xyz(text):
         try:
             v = tuple(float(c) for c in text.split(","))
@@ -94,7 +95,7 @@ def main():
     print("  interior part   =", "  ".join(f"{v:+.6f} +- {e:.6f}" for v, e in zip(in_ref, in_se)),
           f"(plain AD of jittered renders, spp 256, {len(inner)} keys)")
     print(f"{'spp':>5}  {'plain AD (grid)':>42}  {'edge gradients':>42}  relative error of edge (x, y, z, radius)")
-    for spp in (int(v) for v in a.spp.split(",")):
+    for spp in a.spp:
         gp = np.asarray(jax.grad(lambda q: loss(q, spp=spp))(q0))
         ge = np.asarray(jax.grad(lambda q: loss(q, spp=spp, edge_gradients=True))(q0))
         rel = (ge - ref) / np.abs(ref)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 
@@ -174,3 +175,16 @@ def extra_scenes(width=96, height=72, spp=16, max_depth=6):
     b.sphere((1.5, 0.4, -2), 0.4, "wall")
     out["ior 2.4 tilted box (TIR)"] = b
     return {k: v.build() for k, v in out.items()}
+
+
+# Shared by the benchmarks' command lines.
+def spp_list(text):
+    """``--spp``: comma-separated square sample counts, e.g. ``256,1024``."""
+    try:
+        v = [int(c) for c in text.split(",")]
+    except ValueError:
+        v = []
+    if not v or any(s < 1 or int(s ** 0.5) ** 2 != s for s in v):
+        raise argparse.ArgumentTypeError(f"expected comma-separated square numbers (e.g. 256,1024), got {text!r}")
+    return v
+

@@ -493,9 +493,10 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
     # where the pattern changes beside the edge: the derivative the estimate converges
     # to is that of the image as the samples grow, where the filter width goes to 0.
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
-    grid_at = dataclasses.replace(opts, jitter=False)  # camera rays shaded as the grid's samples
+    # The quadrature's rays are shaded as the grid's samples are: ``opts`` (edge mode
+    # has no jitter: ``render`` refuses a key with it).
     edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, hard, xy, n, light),
-                        lambda xy: _radiance_at(scene, grid_at, xy, n, grad=True))
+                        lambda xy: _radiance_at(scene, opts, xy, n, grad=True))
     return img + edge
 
 
