@@ -244,11 +244,14 @@ def _source_digest() -> bytes:
 
     h = hashlib.sha256()
     root = os.path.dirname(os.path.abspath(__file__))
-    for name in sorted(os.listdir(root)):
-        if name.endswith(".py"):
-            h.update(name.encode())
-            with open(os.path.join(root, name), "rb") as f:
-                h.update(f.read())
+    for dirpath, dirnames, filenames in os.walk(root):  # subpackages too
+        dirnames.sort()
+        for name in sorted(filenames):
+            if name.endswith(".py"):
+                path = os.path.join(dirpath, name)
+                h.update(os.path.relpath(path, root).encode())
+                with open(path, "rb") as f:
+                    h.update(f.read())
     return h.digest()
 
 
