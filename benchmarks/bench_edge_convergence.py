@@ -43,7 +43,9 @@ def main():
     ap.add_argument("--keys", type=int, default=128, help="jitter keys averaged by the reference")
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.03, help="FD step, world units (~0.1 pixel)")
-    ap.add_argument("--spp", type=spp_list, default=[256, 1024, 2304, 4096], help="edge-gradient sample counts (square numbers)")
+    ap.add_argument(
+        "--spp", type=spp_list, default=[256, 1024, 2304, 4096], help="edge-gradient sample counts (square numbers)"
+    )
     a = ap.parse_args()
 
     s0 = rt.load_scene(SCENE, dtype=jnp.float64)
@@ -56,11 +58,15 @@ def main():
 
     t0 = time.time()
     f = jax.jit(lambda t, key: loss(t, spp=a.ref_spp, key=key))
-    fd = np.array([float((f(a.step, k) - f(-a.step, k)) / (2 * a.step))
-                   for k in (jax.random.key(i) for i in range(a.keys))])
+    fd = np.array(
+        [float((f(a.step, k) - f(-a.step, k)) / (2 * a.step)) for k in (jax.random.key(i) for i in range(a.keys))]
+    )
     ref, se = fd.mean(), fd.std(ddof=1) / np.sqrt(a.keys)
-    print(f"sphere centre[{a.component}]: reference {ref:+.6f} +- {se:.6f} (jittered central differences, "
-          f"spp {a.ref_spp}, step {a.step}, {a.keys} keys, {time.time() - t0:.0f} s)", flush=True)
+    print(
+        f"sphere centre[{a.component}]: reference {ref:+.6f} +- {se:.6f} (jittered central differences, "
+        f"spp {a.ref_spp}, step {a.step}, {a.keys} keys, {time.time() - t0:.0f} s)",
+        flush=True,
+    )
     print(f"{'spp':>5}  {'h (pixel)':>9}  {'edge gradient':>13}  {'error':>9}  {'relative':>8}")
     hs, errs = [], []
     zero = jnp.asarray(0.0, jnp.float64)
@@ -76,8 +82,10 @@ def main():
         # Richardson extrapolation from the two finest grids with that order.
         r = (hs[-2] / hs[-1]) ** p
         g1, g2 = errs[-2] + ref, errs[-1] + ref
-        print(f"extrapolated to h = 0 from spp {a.spp[-2]} and {a.spp[-1]}: "
-              f"{(r * g2 - g1) / (r - 1):+.6f} (reference {ref:+.6f} +- {se:.6f})")
+        print(
+            f"extrapolated to h = 0 from spp {a.spp[-2]} and {a.spp[-1]}: "
+            f"{(r * g2 - g1) / (r - 1):+.6f} (reference {ref:+.6f} +- {se:.6f})"
+        )
     else:
         print("order of convergence: not fitted (an error is within two standard errors of the reference)")
 

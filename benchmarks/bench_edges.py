@@ -51,26 +51,40 @@ def make_loss(sc):
     p = rt.parameters(sc)
     H, W = sc.settings.height, sc.settings.width
     R = jnp.asarray(smooth_weights(H, W), sc.dtype)
-    q0 = {"light0": p["light[0].position"], "light1": p["light[1].position"], "center": p["object[1].center"],
-          "radius": p["object[1].radius"], "box": jnp.zeros(3, sc.dtype)}
+    q0 = {
+        "light0": p["light[0].position"],
+        "light1": p["light[1].position"],
+        "center": p["object[1].center"],
+        "radius": p["object[1].radius"],
+        "box": jnp.zeros(3, sc.dtype),
+    }
 
     def loss(q, **kw):
-        s = rt.with_parameters(sc, {"light[0].position": q["light0"], "light[1].position": q["light1"],
-                                    "object[1].center": q["center"], "object[1].radius": q["radius"],
-                                    "object[2].min": p["object[2].min"] + q["box"],
-                                    "object[2].max": p["object[2].max"] + q["box"]})
+        s = rt.with_parameters(
+            sc,
+            {
+                "light[0].position": q["light0"],
+                "light[1].position": q["light1"],
+                "object[1].center": q["center"],
+                "object[1].radius": q["radius"],
+                "object[2].min": p["object[2].min"] + q["box"],
+                "object[2].max": p["object[2].max"] + q["box"],
+            },
+        )
         return jnp.mean(R * rt.render(s, **kw))
 
     return loss, q0
 
 
 def flat(g):
-    return np.concatenate([np.atleast_1d(np.asarray(g[k], float)) for k in ("light0", "light1", "center", "radius",
-                                                                          "box")])
+    return np.concatenate(
+        [np.atleast_1d(np.asarray(g[k], float)) for k in ("light0", "light1", "center", "radius", "box")]
+    )
 
 
-LABELS = [f"{n}[{i}]" for n, k in (("light0", 3), ("light1", 3), ("center", 3), ("radius", 1), ("box", 3))
-          for i in range(k)]
+LABELS = [
+    f"{n}[{i}]" for n, k in (("light0", 3), ("light1", 3), ("center", 3), ("radius", 1), ("box", 3)) for i in range(k)
+]
 
 
 def fd(loss, q0, spp, step):
@@ -96,15 +110,21 @@ def accuracy(a):
     ref = fd(loss, q0, a.ref_spp, a.step)
     ref2 = fd(loss, q0, a.ref_spp, a.step / 2)
     ref3 = fd(loss, q0, 16384, a.step)
-    print(f"\nAccuracy, 16 x 12, reference: central differences at spp {a.ref_spp}, step {a.step} "
-          f"(and half the step, and spp 16384, to show convergence); relative error in brackets\n")
+    print(
+        f"\nAccuracy, 16 x 12, reference: central differences at spp {a.ref_spp}, step {a.step} "
+        f"(and half the step, and spp 16384, to show convergence); relative error in brackets\n"
+    )
     head = ["component", f"FD {a.step}", f"FD {a.step / 2}", "FD spp 16384"] + list(cols)
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
     worst = {k: 0.0 for k in cols}
     for i, lab in enumerate(LABELS):
-        cells = [lab, f"{ref[i]:+.5f}", f"{ref2[i]:+.5f} ({(ref2[i] - ref[i]) / ref[i]:+.1%})",
-                 f"{ref3[i]:+.5f} ({(ref3[i] - ref[i]) / ref[i]:+.1%})"]
+        cells = [
+            lab,
+            f"{ref[i]:+.5f}",
+            f"{ref2[i]:+.5f} ({(ref2[i] - ref[i]) / ref[i]:+.1%})",
+            f"{ref3[i]:+.5f} ({(ref3[i] - ref[i]) / ref[i]:+.1%})",
+        ]
         for k, v in cols.items():
             e = (v[i] - ref[i]) / ref[i]
             worst[k] = max(worst[k], abs(e))
@@ -131,9 +151,11 @@ def cost(a):
     W, H = (int(x) for x in a.cost_size.split("x"))
     sc = scene(W, H, a.cost_spp, jnp.float32)
     loss, q0 = make_loss(sc)
-    rows = [("forward render", lambda q: loss(q)),
-            ("value_and_grad, plain AD", jax.value_and_grad(lambda q: loss(q))),
-            ("value_and_grad, edge_gradients=True", jax.value_and_grad(lambda q: loss(q, edge_gradients=True)))]
+    rows = [
+        ("forward render", lambda q: loss(q)),
+        ("value_and_grad, plain AD", jax.value_and_grad(lambda q: loss(q))),
+        ("value_and_grad, edge_gradients=True", jax.value_and_grad(lambda q: loss(q, edge_gradients=True))),
+    ]
     print(f"\nCost, {W} x {H}, spp {a.cost_spp}, float32 (compile s, steady s, XLA temp MiB)\n")
     print("| what | compile (s) | time (s) | temp memory (MiB) |\n|---|---|---|---|")
     res = {}
@@ -142,8 +164,10 @@ def cost(a):
         print(f"| {name} | {res[name][0]:.1f} | {res[name][1]:.3f} | {res[name][2]:.1f} |", flush=True)
     p, e = res["value_and_grad, plain AD"], res["value_and_grad, edge_gradients=True"]
     f = res["forward render"]
-    print(f"\nedge / plain gradient: time {e[1] / p[1]:.2f}x, compile {e[0] / p[0]:.2f}x, memory {e[2] / p[2]:.2f}x; "
-          f"edge gradient / forward render: {e[1] / f[1]:.2f}x")
+    print(
+        f"\nedge / plain gradient: time {e[1] / p[1]:.2f}x, compile {e[0] / p[0]:.2f}x, memory {e[2] / p[2]:.2f}x; "
+        f"edge gradient / forward render: {e[1] / f[1]:.2f}x"
+    )
 
 
 def main(argv=None):

@@ -64,6 +64,7 @@ def run_case(kind, scene_path, width, height, spp, depth, tile, execute):
         fn = jax.jit(image)
         args = (params,)
     else:
+
         def loss(p, t):
             return jnp.mean((image(p) - t) ** 2)
 
@@ -74,10 +75,20 @@ def run_case(kind, scene_path, width, height, spp, depth, tile, execute):
     compiled = fn.lower(*args).compile()
     compile_s = time.perf_counter() - t0
     m = compiled.memory_analysis()
-    out = dict(kind=kind, tile_rays=tile, width=width, height=height, spp=spp, max_depth=depth,
-               compile_s=compile_s, rss_before_mib=rss_before, peak_after_compile_mib=_rss_mib("VmHWM"),
-               temp_mib=m.temp_size_in_bytes / 2**20, args_mib=m.argument_size_in_bytes / 2**20,
-               out_mib=m.output_size_in_bytes / 2**20)
+    out = dict(
+        kind=kind,
+        tile_rays=tile,
+        width=width,
+        height=height,
+        spp=spp,
+        max_depth=depth,
+        compile_s=compile_s,
+        rss_before_mib=rss_before,
+        peak_after_compile_mib=_rss_mib("VmHWM"),
+        temp_mib=m.temp_size_in_bytes / 2**20,
+        args_mib=m.argument_size_in_bytes / 2**20,
+        out_mib=m.output_size_in_bytes / 2**20,
+    )
     if execute:
         t0 = time.perf_counter()
         jax.block_until_ready(compiled(*args))
@@ -108,8 +119,20 @@ def main(argv=None):
     rows = []
     for tile in tiles:
         for kind in ("forward", "grad"):
-            cmd = [sys.executable, os.path.abspath(__file__), "--case", f"{kind}:{tile}", "--scene", a.scene,
-                   "--size", a.size, "--spp", str(a.spp), "--depth", str(a.depth)] + (["--no-run"] if a.no_run else [])
+            cmd = [
+                sys.executable,
+                os.path.abspath(__file__),
+                "--case",
+                f"{kind}:{tile}",
+                "--scene",
+                a.scene,
+                "--size",
+                a.size,
+                "--spp",
+                str(a.spp),
+                "--depth",
+                str(a.depth),
+            ] + (["--no-run"] if a.no_run else [])
             env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
             r = subprocess.run(cmd, capture_output=True, text=True, env=env)
             if r.returncode != 0:
@@ -117,19 +140,26 @@ def main(argv=None):
                 return 1
             row = json.loads(r.stdout.strip().splitlines()[-1])
             rows.append(row)
-            print(f"{kind:8s} tile_rays={tile:6d}: temp {row['temp_mib']:8.1f} MiB  args {row['args_mib']:6.1f} MiB  "
-                  f"out {row['out_mib']:6.1f} MiB  peak RSS {row['peak_rss_mib']:7.0f} MiB "
-                  f"(before compile {row['rss_before_mib']:.0f})  compile {row['compile_s']:.0f} s"
-                  + (f"  run {row['run_s']:.1f} s" if "run_s" in row else ""), flush=True)
-    print(f"\n{os.path.basename(a.scene)} at {w}x{h}, spp {a.spp}, depth {a.depth} "
-          f"({w * h * a.spp} camera rays); jax {__import__('jax').__version__}, {os.cpu_count()} CPUs")
+            print(
+                f"{kind:8s} tile_rays={tile:6d}: temp {row['temp_mib']:8.1f} MiB  args {row['args_mib']:6.1f} MiB  "
+                f"out {row['out_mib']:6.1f} MiB  peak RSS {row['peak_rss_mib']:7.0f} MiB "
+                f"(before compile {row['rss_before_mib']:.0f})  compile {row['compile_s']:.0f} s"
+                + (f"  run {row['run_s']:.1f} s" if "run_s" in row else ""),
+                flush=True,
+            )
+    print(
+        f"\n{os.path.basename(a.scene)} at {w}x{h}, spp {a.spp}, depth {a.depth} "
+        f"({w * h * a.spp} camera rays); jax {__import__('jax').__version__}, {os.cpu_count()} CPUs"
+    )
     print("| tile_rays | forward temp | grad temp | grad / forward | forward peak RSS | grad peak RSS |")
     print("|---:|---:|---:|---:|---:|---:|")
     for tile in tiles:
         f = next(r for r in rows if r["kind"] == "forward" and r["tile_rays"] == tile)
         g = next(r for r in rows if r["kind"] == "grad" and r["tile_rays"] == tile)
-        print(f"| {tile} | {f['temp_mib']:.1f} MiB | {g['temp_mib']:.1f} MiB | {g['temp_mib'] / max(f['temp_mib'], 1e-9):.1f}x "
-              f"| {f['peak_rss_mib']:.0f} MiB | {g['peak_rss_mib']:.0f} MiB |")
+        print(
+            f"| {tile} | {f['temp_mib']:.1f} MiB | {g['temp_mib']:.1f} MiB | {g['temp_mib'] / max(f['temp_mib'], 1e-9):.1f}x "
+            f"| {f['peak_rss_mib']:.0f} MiB | {g['peak_rss_mib']:.0f} MiB |"
+        )
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

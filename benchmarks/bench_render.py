@@ -148,8 +148,15 @@ def worker_raytrax(cfg):
     first_pixel = time.perf_counter() - _T0
     new_entries = _cache_entries(cfg.get("cache")) - n_cache
     times = [_timed(fn) for _ in range(cfg["repeats"])]
-    out = dict(first=t_first, to_first_pixel=first_pixel, times=times, rss_before=rss0, rss=_rss_mb(),
-               backend=jax.default_backend(), new_cache_entries=new_entries)
+    out = dict(
+        first=t_first,
+        to_first_pixel=first_pixel,
+        times=times,
+        rss_before=rss0,
+        rss=_rss_mb(),
+        backend=jax.default_backend(),
+        new_cache_entries=new_entries,
+    )
     if cfg.get("also_grad_first"):
         out["grad_first"] = _timed(grad)
     return out
@@ -259,8 +266,10 @@ def worker_scaling(cfg):
 
             import raytrax.bvh as B
 
-            for key, sc in (("brute", dataclasses.replace(scene, bvh=None)),
-                            ("with_bvh", dataclasses.replace(scene, bvh=B.for_scene(scene)))):
+            for key, sc in (
+                ("brute", dataclasses.replace(scene, bvh=None)),
+                ("with_bvh", dataclasses.replace(scene, bvh=B.for_scene(scene))),
+            ):
                 old, B.MIN_TRIANGLES = B.MIN_TRIANGLES, 0
                 try:
                     f, _ = _rt_fns(sc)
@@ -289,8 +298,13 @@ def run_worker(cfg, timeout=3600):
     env = dict(os.environ)
     env.setdefault("JAX_PLATFORMS", "cpu")
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", json.dumps(cfg)],
-                       capture_output=True, text=True, env=env, timeout=timeout)
+    r = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), "--worker", json.dumps(cfg)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
     wall = time.perf_counter() - t
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT ")]
     if r.returncode != 0 or not lines:
@@ -307,10 +321,14 @@ def source_state():
     src = os.path.join(root, "raytrax")
     newest = max((os.path.getmtime(os.path.join(src, f)) for f in os.listdir(src) if f.endswith(".py")), default=0.0)
     try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True,
-                              text=True).stdout.strip()
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--", "raytrax"], cwd=root,
-                                    capture_output=True, text=True).stdout.strip())
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
+        ).stdout.strip()
+        dirty = bool(
+            subprocess.run(
+                ["git", "status", "--porcelain", "--", "raytrax"], cwd=root, capture_output=True, text=True
+            ).stdout.strip()
+        )
     except OSError:
         head, dirty = "?", False
     return head, dirty, newest
@@ -341,8 +359,11 @@ def rate(n, t):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--worker", help=argparse.SUPPRESS)
-    p.add_argument("--sizes", default="320x240", help="comma-separated WxH list (default 320x240; "
-                   "the issue's figures: 640x480,1024x1024)")
+    p.add_argument(
+        "--sizes",
+        default="320x240",
+        help="comma-separated WxH list (default 320x240; the issue's figures: 640x480,1024x1024)",
+    )
     p.add_argument("--scenes", default="seed,physical")
     p.add_argument("--spp", type=int, default=4)
     p.add_argument("--depth", type=int, default=5)
@@ -371,9 +392,17 @@ def main(argv=None):
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
     scene_names = [s for s in args.scenes.split(",") if s]
     spp, depth = args.spp, args.depth
-    results = dict(machine=dict(cpus=os.cpu_count(), processor=platform.processor() or platform.machine(),
-                                python=platform.python_version(), jax=jax.__version__,
-                                raytrax=rt.__version__, load=os.getloadavg()), runs=[])
+    results = dict(
+        machine=dict(
+            cpus=os.cpu_count(),
+            processor=platform.processor() or platform.machine(),
+            python=platform.python_version(),
+            jax=jax.__version__,
+            raytrax=rt.__version__,
+            load=os.getloadavg(),
+        ),
+        runs=[],
+    )
     try:
         import mitsuba
 
@@ -381,8 +410,10 @@ def main(argv=None):
     except Exception:  # noqa: BLE001
         pass
     m = results["machine"]
-    print(f"machine: {m['cpus']} CPUs ({m['processor']}), load average {m['load'][0]:.1f}; python {m['python']}, "
-          f"jax {m['jax']} (cpu), raytrax {m['raytrax']}, mitsuba {m.get('mitsuba', 'not installed')}")
+    print(
+        f"machine: {m['cpus']} CPUs ({m['processor']}), load average {m['load'][0]:.1f}; python {m['python']}, "
+        f"jax {m['jax']} (cpu), raytrax {m['raytrax']}, mitsuba {m.get('mitsuba', 'not installed')}"
+    )
     head, dirty, newest0 = source_state()
     results["machine"]["git"] = dict(head=head, raytrax_dirty=dirty)
     print(f"raytrax source: git {head}{' + uncommitted changes in raytrax/' if dirty else ''}")
@@ -403,9 +434,20 @@ def main(argv=None):
             print(f"=== {W} x {H}, spp {spp}, depth {depth} ({cam_rays:,} camera rays) ===")
             mi_res = None
             if "physical" in scene_names and not args.no_mitsuba:
-                mi_res = run_worker(dict(task="mitsuba", scene="physical", W=W, H=H, spp=spp, depth=depth,
-                                         repeats=args.repeats, grad_repeats=args.grad_repeats,
-                                         grad=not args.no_grad, variant=args.variant))
+                mi_res = run_worker(
+                    dict(
+                        task="mitsuba",
+                        scene="physical",
+                        W=W,
+                        H=H,
+                        spp=spp,
+                        depth=depth,
+                        repeats=args.repeats,
+                        grad_repeats=args.grad_repeats,
+                        grad=not args.no_grad,
+                        variant=args.variant,
+                    )
+                )
                 if "error" in mi_res:
                     print(f"  Mitsuba: {mi_res['error']}")
                     mi_res = None
@@ -431,55 +473,87 @@ def main(argv=None):
                         print(f"  {label}: {r['error']}")
                         continue
                     steady = med(r["times"])
-                    print(f"  raytrax {label:<15s} steady {fmt_t(steady)} (median of {len(r['times'])})   "
-                          f"cold first call {fmt_t(r['first'])} (compile ~{fmt_c(r['first'] - steady)})   "
-                          f"peak RSS {r['rss']:.0f} MiB (before render {r['rss_before']:.0f})")
+                    print(
+                        f"  raytrax {label:<15s} steady {fmt_t(steady)} (median of {len(r['times'])})   "
+                        f"cold first call {fmt_t(r['first'])} (compile ~{fmt_c(r['first'] - steady)})   "
+                        f"peak RSS {r['rss']:.0f} MiB (before render {r['rss_before']:.0f})"
+                    )
                     if label == "forward":
-                        print(f"  {'':<24s} camera rays {rate(cam_rays, steady)}"
-                              + (f", total rays {rate(total_rays, steady)} ({total_rays:,} rays: "
-                                 + ", ".join(f"{k} {v:,}" for k, v in mi_res['rays'].items()) + ")"
-                                 if total_rays else ", total rays n/a (counted for the physical scene only)"))
+                        print(
+                            f"  {'':<24s} camera rays {rate(cam_rays, steady)}"
+                            + (
+                                f", total rays {rate(total_rays, steady)} ({total_rays:,} rays: "
+                                + ", ".join(f"{k} {v:,}" for k, v in mi_res["rays"].items())
+                                + ")"
+                                if total_rays
+                                else ", total rays n/a (counted for the physical scene only)"
+                            )
+                        )
                 if warm is not None and "error" not in warm:
                     hit = "cache hit" if warm["new_cache_entries"] == 0 else "CACHE MISS: new entries written"
                     over = warm["first"] - med(fw["times"]) if "error" not in fw else float("nan")
-                    print(f"  warm cache (2nd process, {hit}): forward first call {fmt_t(warm['first'])} "
-                          f"(~{fmt_c(over)} over the steady time), "
-                          f"to first pixel {fmt_t(warm['to_first_pixel'])} from process start"
-                          + (f"; value_and_grad first call {fmt_t(warm['grad_first'])}" if "grad_first" in warm else ""))
+                    print(
+                        f"  warm cache (2nd process, {hit}): forward first call {fmt_t(warm['first'])} "
+                        f"(~{fmt_c(over)} over the steady time), "
+                        f"to first pixel {fmt_t(warm['to_first_pixel'])} from process start"
+                        + (f"; value_and_grad first call {fmt_t(warm['grad_first'])}" if "grad_first" in warm else "")
+                    )
                 elif warm is not None:
                     print(f"  warm: {warm['error']}")
                 if name == "physical" and mi_res is not None:
                     nf, gf = med(mi_res["native_times"]), med(mi_res["grid_times"])
-                    print(f"  Mitsuba forward (mi.render) steady {fmt_t(nf)} (first {fmt_t(mi_res['native_first'])}, "
-                          f"camera rays {rate(cam_rays, nf)}, total {rate(total_rays, nf)}); at raytrax's samples "
-                          f"{fmt_t(gf)}; peak RSS {mi_res['rss_fwd']:.0f} MiB")
+                    print(
+                        f"  Mitsuba forward (mi.render) steady {fmt_t(nf)} (first {fmt_t(mi_res['native_first'])}, "
+                        f"camera rays {rate(cam_rays, nf)}, total {rate(total_rays, nf)}); at raytrax's samples "
+                        f"{fmt_t(gf)}; peak RSS {mi_res['rss_fwd']:.0f} MiB"
+                    )
                     if "grad_times" in mi_res:
                         mg = med(mi_res["grad_times"])
-                        print(f"  Mitsuba gradient (light positions, dr.backward) steady {fmt_t(mg)} "
-                              f"(first {fmt_t(mi_res['grad_first'])}); peak RSS {mi_res['rss']:.0f} MiB; "
-                              f"ior: n/a (not differentiable in Mitsuba)")
+                        print(
+                            f"  Mitsuba gradient (light positions, dr.backward) steady {fmt_t(mg)} "
+                            f"(first {fmt_t(mi_res['grad_first'])}); peak RSS {mi_res['rss']:.0f} MiB; "
+                            f"ior: n/a (not differentiable in Mitsuba)"
+                        )
                     if "error" not in fw:
                         print(f"  ratio raytrax / Mitsuba, forward: {med(fw['times']) / nf:.2f} (medians)")
                     if gr is not None and "error" not in gr and "grad_times" in mi_res:
-                        print(f"  ratio raytrax / Mitsuba, gradient: {med(gr['times']) / mg:.2f} (medians; raytrax "
-                              f"also differentiates the ior)")
+                        print(
+                            f"  ratio raytrax / Mitsuba, gradient: {med(gr['times']) / mg:.2f} (medians; raytrax "
+                            f"also differentiates the ior)"
+                        )
                     if gr is not None and "error" not in gr and "error" not in fw:
                         print(f"  raytrax gradient / own forward: {med(gr['times']) / med(fw['times']):.2f}")
                     if si < args.warm_sizes:
-                        pr = run_worker(dict(task="paired", scene="physical", W=W, H=H, spp=spp, depth=depth,
-                                             cache=cache, repeats=args.repeats, grad_repeats=args.grad_repeats,
-                                             grad=not args.no_grad, variant=args.variant))
+                        pr = run_worker(
+                            dict(
+                                task="paired",
+                                scene="physical",
+                                W=W,
+                                H=H,
+                                spp=spp,
+                                depth=depth,
+                                cache=cache,
+                                repeats=args.repeats,
+                                grad_repeats=args.grad_repeats,
+                                grad=not args.no_grad,
+                                variant=args.variant,
+                            )
+                        )
                         run["paired"] = pr
                         if "error" in pr:
                             print(f"  interleaved: {pr['error']}")
                         else:
                             rf = med([a / b for a, b in zip(pr["fwd"], pr["mi_fwd"])])
-                            line = (f"  interleaved in one process: forward raytrax {fmt_t(med(pr['fwd']))} / Mitsuba "
-                                    f"{fmt_t(med(pr['mi_fwd']))} -> ratio {rf:.2f}")
+                            line = (
+                                f"  interleaved in one process: forward raytrax {fmt_t(med(pr['fwd']))} / Mitsuba "
+                                f"{fmt_t(med(pr['mi_fwd']))} -> ratio {rf:.2f}"
+                            )
                             if pr["grad"]:
                                 rg = med([a / b for a, b in zip(pr["grad"], pr["mi_grad"])])
-                                line += (f"; gradient {fmt_t(med(pr['grad']))} / {fmt_t(med(pr['mi_grad']))} -> "
-                                         f"ratio {rg:.2f}")
+                                line += (
+                                    f"; gradient {fmt_t(med(pr['grad']))} / {fmt_t(med(pr['mi_grad']))} -> "
+                                    f"ratio {rg:.2f}"
+                                )
                             print(line + " (median of per-pair ratios)")
                     if not mi_note_done:
                         import mitsuba_scene as ms
@@ -492,34 +566,48 @@ def main(argv=None):
 
         if args.scaling:
             W, H = (int(v) for v in args.scaling_size.split("x"))
-            items = ([(f"spheres{n}", 2) for n in (10, 100, 1000)] + [(f"tris{n}", 2) for n in (10, 100, 1000, 10000)]
-                     + [("physical", d) for d in range(1, 9)])
-            print(f"=== scaling: {W} x {H}, spp 1 (objects: floor + N diffuse objects, depth 2; depth: physical scene) ===")
-            sc = run_worker(dict(task="scaling", W=W, H=H, spp=1, repeats=3, items=items, variant=args.variant),
-                            timeout=7200)
+            items = (
+                [(f"spheres{n}", 2) for n in (10, 100, 1000)]
+                + [(f"tris{n}", 2) for n in (10, 100, 1000, 10000)]
+                + [("physical", d) for d in range(1, 9)]
+            )
+            print(
+                f"=== scaling: {W} x {H}, spp 1 (objects: floor + N diffuse objects, depth 2; depth: physical scene) ==="
+            )
+            sc = run_worker(
+                dict(task="scaling", W=W, H=H, spp=1, repeats=3, items=items, variant=args.variant), timeout=7200
+            )
             results["scaling"] = sc
             if "error" in sc:
                 print(f"  {sc['error']}")
             else:
-                print(f"  {'scene':<14s} {'depth':>5s} {'raytrax':>8s} {'Mitsuba':>8s} {'ratio':>6s}  raytrax first call")
+                print(
+                    f"  {'scene':<14s} {'depth':>5s} {'raytrax':>8s} {'Mitsuba':>8s} {'ratio':>6s}  raytrax first call"
+                )
                 for r in sc["rows"]:
                     mit = r.get("mi")
-                    print(f"  {r['scene']:<14s} {r['depth']:>5d} {fmt_t(r['rt']):>8s} {fmt_t(mit):>8s} "
-                          f"{(r['rt'] / mit if mit else float('nan')):6.2f}  {fmt_t(r['first'])}"
-                          + ("  (BVH)" if r.get("bvh") else ""))
+                    print(
+                        f"  {r['scene']:<14s} {r['depth']:>5d} {fmt_t(r['rt']):>8s} {fmt_t(mit):>8s} "
+                        f"{(r['rt'] / mit if mit else float('nan')):6.2f}  {fmt_t(r['first'])}"
+                        + ("  (BVH)" if r.get("bvh") else "")
+                    )
                 tri_rows = [r for r in sc["rows"] if "brute" in r]
                 if tri_rows:
                     import raytrax.bvh
 
-                    print(f"\n  triangle BVH crossover (raytrax.bvh.MIN_TRIANGLES = {raytrax.bvh.MIN_TRIANGLES}: "
-                          f"BVH above it)")
+                    print(
+                        f"\n  triangle BVH crossover (raytrax.bvh.MIN_TRIANGLES = {raytrax.bvh.MIN_TRIANGLES}: "
+                        f"BVH above it)"
+                    )
                     print(f"  {'scene':<14s} {'brute':>8s} {'BVH':>8s} {'speedup':>7s}  first call brute / BVH")
                     for r in tri_rows:
                         # The variant the scene uses by default was compiled by the row above.
                         fb = r["brute_first"] if r["bvh"] else r["first"]
                         fv = r["first"] if r["bvh"] else r["with_bvh_first"]
-                        print(f"  {r['scene']:<14s} {fmt_t(r['brute']):>8s} {fmt_t(r['with_bvh']):>8s} "
-                              f"{r['brute'] / r['with_bvh']:7.2f}  {fmt_t(fb)} / {fmt_t(fv)}")
+                        print(
+                            f"  {r['scene']:<14s} {fmt_t(r['brute']):>8s} {fmt_t(r['with_bvh']):>8s} "
+                            f"{r['brute'] / r['with_bvh']:7.2f}  {fmt_t(fb)} / {fmt_t(fv)}"
+                        )
     finally:
         shutil.rmtree(cache_root, ignore_errors=True)
     if args.json:

@@ -51,6 +51,7 @@ def main():
     ap.add_argument("--ref-spp", type=int, default=4096)
     ap.add_argument("--step", type=float, default=0.02, help="FD step, world units (~0.045 pixel)")
     ap.add_argument("--spp", type=spp_list, default=[64, 256, 1024], help="edge-gradient sample counts")
+
     def xyz(text):
         try:
             v = tuple(float(c) for c in text.split(","))
@@ -60,9 +61,13 @@ def main():
             raise argparse.ArgumentTypeError(f"expected three numbers x,y,z, got {text!r}")
         return v
 
-    ap.add_argument("--light", type=xyz, default=None,
-                    help="light position x,y,z instead of the scene's (2,3,5); 0,0,5: at the camera, "
-                         "no terminator or shadow in view")
+    ap.add_argument(
+        "--light",
+        type=xyz,
+        default=None,
+        help="light position x,y,z instead of the scene's (2,3,5); 0,0,5: at the camera, "
+        "no terminator or shadow in view",
+    )
     a = ap.parse_args()
 
     s0 = rt.load_scene(SCENE, dtype=jnp.float64)
@@ -88,19 +93,27 @@ def main():
     gi = jax.jit(jax.grad(lambda q, key: loss(q, spp=256, key=key)))
     inner = np.array([np.asarray(gi(q0, jax.random.key(10_000 + k))) for k in range(4 * a.keys)])
     in_ref, in_se = inner.mean(0), inner.std(0, ddof=1) / np.sqrt(len(inner))
-    print(f"reference: jittered central differences, spp {a.ref_spp}, step {a.step}, {a.keys} keys "
-          f"({time.time() - t0:.0f} s)")
+    print(
+        f"reference: jittered central differences, spp {a.ref_spp}, step {a.step}, {a.keys} keys "
+        f"({time.time() - t0:.0f} s)"
+    )
     print("  components      =", "  ".join(f"{n:>20}" for n in NAMES))
     print("  d L / d q       =", "  ".join(f"{v:+.6f} +- {e:.6f}" for v, e in zip(ref, ref_se)))
-    print("  interior part   =", "  ".join(f"{v:+.6f} +- {e:.6f}" for v, e in zip(in_ref, in_se)),
-          f"(plain AD of jittered renders, spp 256, {len(inner)} keys)")
+    print(
+        "  interior part   =",
+        "  ".join(f"{v:+.6f} +- {e:.6f}" for v, e in zip(in_ref, in_se)),
+        f"(plain AD of jittered renders, spp 256, {len(inner)} keys)",
+    )
     print(f"{'spp':>5}  {'plain AD (grid)':>42}  {'edge gradients':>42}  relative error of edge (x, y, z, radius)")
     for spp in a.spp:
         gp = np.asarray(jax.grad(lambda q: loss(q, spp=spp))(q0))
         ge = np.asarray(jax.grad(lambda q: loss(q, spp=spp, edge_gradients=True))(q0))
         rel = (ge - ref) / np.abs(ref)
-        print(f"{spp:>5}  {' '.join(f'{v:+.6f}' for v in gp):>42}  {' '.join(f'{v:+.6f}' for v in ge):>42}  "
-              + "  ".join(f"{r:+.1%}" for r in rel), flush=True)
+        print(
+            f"{spp:>5}  {' '.join(f'{v:+.6f}' for v in gp):>42}  {' '.join(f'{v:+.6f}' for v in ge):>42}  "
+            + "  ".join(f"{r:+.1%}" for r in rel),
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -53,11 +53,13 @@ def metrics(a, b):
 
 
 def row(name, m):
-    return (f"  {name:<38s} {m['psnr_lin']:7.2f} {m['psnr_srgb']:8.2f}   {m['mad']:.2e}   {m['max']:.3f}"
-            f"   {100 * m['frac']:6.2f}%")
+    return (
+        f"  {name:<38s} {m['psnr_lin']:7.2f} {m['psnr_srgb']:8.2f}   {m['mad']:.2e}   {m['max']:.3f}"
+        f"   {100 * m['frac']:6.2f}%"
+    )
 
 
-HEADER = ("  comparison                             PSNR-lin PSNR-sRGB  mean|d|    max|d|  px|d|>.01")
+HEADER = "  comparison                             PSNR-lin PSNR-sRGB  mean|d|    max|d|  px|d|>.01"
 
 
 def save_png(path, images, labels=None, scale=2):
@@ -104,9 +106,9 @@ def compare(name, scene, args, full_tree=False):
     print(row("Mitsuba native vs grid (noise floor)", metrics(n, g)))
     full = None
     if full_tree:
-        full, _ = render_rt(scene, branches=2 ** depth)
+        full, _ = render_rt(scene, branches=2**depth)
         res["rtfull_vs_grid"] = metrics(full, g)
-        print(row(f"raytrax branches={2 ** depth} (full tree) vs grid", res["rtfull_vs_grid"]))
+        print(row(f"raytrax branches={2**depth} (full tree) vs grid", res["rtfull_vs_grid"]))
         print(row("raytrax branches=2 vs branches=full", metrics(a, full)))
     if args.high_spp:
         hs = args.high_spp
@@ -117,8 +119,10 @@ def compare(name, scene, args, full_tree=False):
     diff = np.abs(a - g).max(-1) * args.diff_gain
     path = os.path.join(args.out, f"compare_{name}.png")
     save_png(path, [a, g, n, diff])
-    print(f"  wrote {os.path.relpath(path)}: raytrax | Mitsuba grid | Mitsuba native | "
-          f"|raytrax - Mitsuba grid| x {args.diff_gain:g} (max over RGB)")
+    print(
+        f"  wrote {os.path.relpath(path)}: raytrax | Mitsuba grid | Mitsuba native | "
+        f"|raytrax - Mitsuba grid| x {args.diff_gain:g} (max over RGB)"
+    )
     return res, a, g
 
 
@@ -130,8 +134,12 @@ def main(argv=None):
     p.add_argument("--depth", type=int, default=5)
     p.add_argument("--high-spp", type=int, default=0, help="also compare both renderers at this spp (0: skip)")
     p.add_argument("--isolate", action="store_true", help="compare the floor plus one object kind at a time")
-    p.add_argument("--extra", action="store_true", help="compare small scenes that exercise the model's corners "
-                   "(glass meshes, mixtures, back sides, TIR...) at 96 x 72")
+    p.add_argument(
+        "--extra",
+        action="store_true",
+        help="compare small scenes that exercise the model's corners "
+        "(glass meshes, mixtures, back sides, TIR...) at 96 x 72",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--diff-gain", type=float, default=10.0)
     p.add_argument("--variant", default=ms.DEFAULT_VARIANT)
@@ -143,9 +151,11 @@ def main(argv=None):
     except ms.MitsubaUnavailable as e:
         print(f"Mitsuba cannot start, no comparison made:\n  {e}")
         return 2
-    print(f"raytrax {rt.__version__}, jax {jax.__version__} ({jax.default_backend()}), "
-          f"Mitsuba {mi.__version__} ({mi.variant()}), {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} CPUs")
+    print(
+        f"raytrax {rt.__version__}, jax {jax.__version__} ({jax.default_backend()}), "
+        f"Mitsuba {mi.__version__} ({mi.variant()}), {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} CPUs"
+    )
     print(ms.HOW_THEY_DIFFER)
 
     W, H, spp, depth = args.width, args.height, args.spp, args.depth
@@ -175,15 +185,22 @@ def main(argv=None):
             a, _ = render_rt(sc)
             g = ms.render_grid(ms.load(sc), 96, 72, spp)
             print(row(k, metrics(a, g)))
-            save_png(os.path.join(args.out, "extra_" + "".join(c if c.isalnum() else "_" for c in k) + ".png"),
-                     [a, g, np.abs(a - g).max(-1) * args.diff_gain], scale=3)
+            save_png(
+                os.path.join(args.out, "extra_" + "".join(c if c.isalnum() else "_" for c in k) + ".png"),
+                [a, g, np.abs(a - g).max(-1) * args.diff_gain],
+                scale=3,
+            )
 
     print("\n== summary (PSNR on linear images clipped to [0, 1], peak 1) ==")
     ok = simple["rt_vs_grid"]["psnr_lin"] > 40 and simple["rt_vs_native"]["psnr_lin"] > 40
-    print(f"  simple scene:   {simple['rt_vs_grid']['psnr_lin']:.1f} dB (same samples), "
-          f"{simple['rt_vs_native']['psnr_lin']:.1f} dB (Mitsuba stratified)  -> {'OK' if ok else 'FAIL'} (> 40 dB)")
-    print(f"  physical scene: {phys['rt_vs_grid']['psnr_lin']:.1f} dB (same samples), "
-          f"{phys['rt_vs_native']['psnr_lin']:.1f} dB (Mitsuba stratified)")
+    print(
+        f"  simple scene:   {simple['rt_vs_grid']['psnr_lin']:.1f} dB (same samples), "
+        f"{simple['rt_vs_native']['psnr_lin']:.1f} dB (Mitsuba stratified)  -> {'OK' if ok else 'FAIL'} (> 40 dB)"
+    )
+    print(
+        f"  physical scene: {phys['rt_vs_grid']['psnr_lin']:.1f} dB (same samples), "
+        f"{phys['rt_vs_native']['psnr_lin']:.1f} dB (Mitsuba stratified)"
+    )
     return 0 if ok else 1
 
 

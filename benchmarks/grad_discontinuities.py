@@ -40,14 +40,17 @@ from raytrax.integrator import render  # noqa: E402
 W, H = 32, 24
 BIG = 0.02
 REF_SPP = 1024
-PARAMS = [("light[0].position", 0, "light x (shadow edge)"),
-          ("object[1].center", 0, "sphere x (silhouette + shadow)"),
-          ("material.floor.texture.scale", None, "checker scale (texture edges)")]
+PARAMS = [
+    ("light[0].position", 0, "light x (shadow edge)"),
+    ("object[1].center", 0, "sphere x (silhouette + shadow)"),
+    ("material.floor.texture.scale", None, "checker scale (texture edges)"),
+]
 
 
 def scene():
-    b = rt.SceneBuilder("classic", width=W, height=H, spp=1, max_depth=1,
-                        background=(0.2, 0.2, 0.25), ambient=(0.25, 0.25, 0.25))
+    b = rt.SceneBuilder(
+        "classic", width=W, height=H, spp=1, max_depth=1, background=(0.2, 0.2, 0.25), ambient=(0.25, 0.25, 0.25)
+    )
     b.camera(position=(0.0, 4.0, 4.0), look_at=(0.0, 0.0, 0.0), fov=40)
     b.light((1.5, 4.0, 1.0), intensity=(0.9, 0.9, 0.9))
     b.material("floor", color=(0.9, 0.9, 0.9), texture=rt.Checker(color2=(0.15, 0.15, 0.15), scale=1.7))
@@ -93,16 +96,20 @@ def main():
     for name, comp, label in PARAMS:
         refs[label] = (float(L(shifted(p, name, comp, BIG))) - float(L(shifted(p, name, comp, -BIG)))) / (2 * BIG)
 
-    print(f"\nsphere on a checkered floor, {W}x{H}, classic, depth 1, float64; L = mean(R * image), R fixed "
-          f"random in [0, 1]; FD big step {BIG}; ref = FD big step at spp {REF_SPP} with filtered textures")
+    print(
+        f"\nsphere on a checkered floor, {W}x{H}, classic, depth 1, float64; L = mean(R * image), R fixed "
+        f"random in [0, 1]; FD big step {BIG}; ref = FD big step at spp {REF_SPP} with filtered textures"
+    )
     print("| parameter | textures | spp | AD | FD 1e-6 | FD big | ref | AD / ref |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for name, comp, label in PARAMS:
         for filt in (True, False):
             for spp in (1, 16):
                 r = rows[(label, filt, spp)]
-                print(f"| {label} | {'filtered' if filt else 'hard'} | {spp} | {r['ad']:.4g} | {r['fd_small']:.4g} "
-                      f"| {r['fd_big']:.4g} | {refs[label]:.4g} | {r['ad'] / refs[label]:.2f} |")
+                print(
+                    f"| {label} | {'filtered' if filt else 'hard'} | {spp} | {r['ad']:.4g} | {r['fd_small']:.4g} "
+                    f"| {r['fd_big']:.4g} | {refs[label]:.4g} | {r['ad'] / refs[label]:.2f} |"
+                )
     print(f"\n({time.time() - t_start:.0f} s; jax {jax.__version__})")
 
 

@@ -118,10 +118,12 @@ def ensure_mitsuba(variant: str = DEFAULT_VARIANT):
     if probe:
         hint = ""
         if variant.startswith("llvm"):
-            hint = (" Mitsuba's LLVM variants need a working libLLVM: on Debian 12 run "
-                    "`apt-get install libllvm19` (the LLVM 15 that is installed crashes in "
-                    "Mitsuba's kernels), or point DRJIT_LIBLLVM_PATH at a newer libLLVM.so; "
-                    "or use the variant 'scalar_rgb'.")
+            hint = (
+                " Mitsuba's LLVM variants need a working libLLVM: on Debian 12 run "
+                "`apt-get install libllvm19` (the LLVM 15 that is installed crashes in "
+                "Mitsuba's kernels), or point DRJIT_LIBLLVM_PATH at a newer libLLVM.so; "
+                "or use the variant 'scalar_rgb'."
+            )
         raise MitsubaUnavailable(f"Mitsuba variant {variant!r} cannot start: {probe}.{hint}")
     mi.set_variant(variant)
     _register_integrator(mi, dr)
@@ -244,11 +246,14 @@ def _register_integrator(mi, dr):
             dr.eval(acc)
             return acc
 
-        def sample(self, mode, scene, sampler, ray, depth=None, δL=None, δaovs=None, state_in=None,
-                   active=True, **kwargs):
+        def sample(
+            self, mode, scene, sampler, ray, depth=None, δL=None, δaovs=None, state_in=None, active=True, **kwargs
+        ):
             if mode != dr.ADMode.Primal:
-                raise NotImplementedError("the Whitted reference integrator renders in primal mode only "
-                                          "(differentiate render_grid with dr.backward instead)")
+                raise NotImplementedError(
+                    "the Whitted reference integrator renders in primal mode only "
+                    "(differentiate render_grid with dr.backward instead)"
+                )
             L = self.trace(scene, ray, self.counts)
             return L, dr.full(mi.Bool, True, dr.width(L)), [], None
 
@@ -284,16 +289,20 @@ def material_bsdf(color, reflectivity, transparency, ior):
         return {"type": "dielectric", "int_ior": float(ior), "ext_ior": 1.0}
     if T > 0.0:
         raise NotImplementedError(
-            f"partially transparent physical material (transparency={T}) has no Mitsuba mapping here")
+            f"partially transparent physical material (transparency={T}) has no Mitsuba mapping here"
+        )
     kd = (1.0 - R) * C
     if not np.any(R > 0):
         inner = {"type": "diffuse", "reflectance": rgb(C)}
     elif not np.any(kd > 0):
         inner = {"type": "conductor", "material": "none", "specular_reflectance": rgb(R)}
     else:
-        inner = {"type": "blendbsdf", "weight": 0.5,
-                 "bsdf_0": {"type": "diffuse", "reflectance": rgb(2.0 * kd)},
-                 "bsdf_1": {"type": "conductor", "material": "none", "specular_reflectance": rgb(R)}}
+        inner = {
+            "type": "blendbsdf",
+            "weight": 0.5,
+            "bsdf_0": {"type": "diffuse", "reflectance": rgb(2.0 * kd)},
+            "bsdf_1": {"type": "conductor", "material": "none", "specular_reflectance": rgb(R)},
+        }
     return {"type": "twosided", "bsdf": inner}
 
 
@@ -316,10 +325,12 @@ def box_triangles(lo, hi, rotation):
     for ax in range(3):
         u, v = (ax + 1) % 3, (ax + 2) % 3
         for s in (-1.0, 1.0):
+
             def P(a, b):
                 p = np.zeros(3)
                 p[ax], p[u], p[v] = s * h[ax], a * h[u], b * h[v]
                 return c + R @ p
+
             q = [P(-1, -1), P(1, -1), P(1, 1), P(-1, 1)]  # counter-clockwise about +ax
             if s < 0:
                 q = q[::-1]
@@ -344,7 +355,7 @@ def scene_triangles(scene):
         tris, mats = te.triangles()
         tris, mats = _np(tris), np.asarray(mats)
         for i in range(te.center.shape[0]):
-            out.append((f"tetrahedron{i}", tris[4 * i:4 * i + 4], int(mats[4 * i])))
+            out.append((f"tetrahedron{i}", tris[4 * i : 4 * i + 4], int(mats[4 * i])))
     b = scene.boxes
     for i in range(b.lo.shape[0]):
         out.append((f"box{i}", box_triangles(b.lo[i], b.hi[i], b.rotation[i]), int(b.material[i])))
@@ -392,8 +403,18 @@ def _plane_to_world(mi, point, normal, extent):
     return mi.ScalarTransform4f(M.tolist())
 
 
-def scene_dict(scene, *, width=None, height=None, spp=None, max_depth=None, sampler="stratified",
-               plane_extent=None, variant=DEFAULT_VARIANT, seed=0):
+def scene_dict(
+    scene,
+    *,
+    width=None,
+    height=None,
+    spp=None,
+    max_depth=None,
+    sampler="stratified",
+    plane_extent=None,
+    variant=DEFAULT_VARIANT,
+    seed=0,
+):
     """A Mitsuba scene dict for a built ``physical`` raytrax ``scene``.
 
     ``width``/``height``/``spp``/``max_depth`` override the scene's settings.
@@ -410,8 +431,11 @@ def scene_dict(scene, *, width=None, height=None, spp=None, max_depth=None, samp
     cam = scene.camera
     d = {
         "type": "scene",
-        "integrator": {"type": "raytrax_whitted", "max_depth": int(depth),
-                       "background": mi.ScalarColor3f(*[float(x) for x in _np(scene.environment.background)])},
+        "integrator": {
+            "type": "raytrax_whitted",
+            "max_depth": int(depth),
+            "background": mi.ScalarColor3f(*[float(x) for x in _np(scene.environment.background)]),
+        },
         "sensor": {
             "type": "perspective",
             "fov_axis": "y",
@@ -420,25 +444,43 @@ def scene_dict(scene, *, width=None, height=None, spp=None, max_depth=None, samp
             "far_clip": 1e7,
             "to_world": _look_at(mi, cam.position, cam.look_at, cam.up),
             "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)},
-            "film": {"type": "hdrfilm", "width": int(W), "height": int(H), "pixel_format": "rgb",
-                     "component_format": "float32", "rfilter": {"type": "box"}},
+            "film": {
+                "type": "hdrfilm",
+                "width": int(W),
+                "height": int(H),
+                "pixel_format": "rgb",
+                "component_format": "float32",
+                "rfilter": {"type": "box"},
+            },
         },
     }
     mats = scene.materials
-    bsdfs = [material_bsdf(mats.color[k], mats.reflectivity[k], mats.transparency[k], mats.ior[k])
-             for k in range(mats.color.shape[0])]
+    bsdfs = [
+        material_bsdf(mats.color[k], mats.reflectivity[k], mats.transparency[k], mats.ior[k])
+        for k in range(mats.color.shape[0])
+    ]
     for i in range(scene.lights.position.shape[0]):
-        d[f"light{i}"] = {"type": "point", "position": [float(x) for x in _np(scene.lights.position[i])],
-                          "intensity": {"type": "rgb", "value": [float(x) for x in _np(scene.lights.intensity[i])]}}
+        d[f"light{i}"] = {
+            "type": "point",
+            "position": [float(x) for x in _np(scene.lights.position[i])],
+            "intensity": {"type": "rgb", "value": [float(x) for x in _np(scene.lights.intensity[i])]},
+        }
     sp = scene.spheres
     for i in range(sp.center.shape[0]):
-        d[f"sphere{i}"] = {"type": "sphere", "center": [float(x) for x in _np(sp.center[i])],
-                           "radius": float(sp.radius[i]), "bsdf": bsdfs[int(sp.material[i])]}
+        d[f"sphere{i}"] = {
+            "type": "sphere",
+            "center": [float(x) for x in _np(sp.center[i])],
+            "radius": float(sp.radius[i]),
+            "bsdf": bsdfs[int(sp.material[i])],
+        }
     pl = scene.planes
     for i in range(pl.point.shape[0]):
         ext = plane_extent or 1e3 * max(1.0, float(np.linalg.norm(_np(cam.position) - _np(pl.point[i]))))
-        d[f"plane{i}"] = {"type": "rectangle", "to_world": _plane_to_world(mi, pl.point[i], pl.normal[i], ext),
-                          "bsdf": bsdfs[int(pl.material[i])]}
+        d[f"plane{i}"] = {
+            "type": "rectangle",
+            "to_world": _plane_to_world(mi, pl.point[i], pl.normal[i], ext),
+            "bsdf": bsdfs[int(pl.material[i])],
+        }
     for name, tris, m in scene_triangles(scene):
         d[name] = _mi_mesh(mi, name, tris, bsdfs[m])
     if int(np.asarray(scene.materials.tex_kind).max(initial=0)) != 0:
@@ -517,5 +559,3 @@ def srgb(x):
     """Linear [0, 1] -> sRGB-encoded [0, 1] (clipped)."""
     x = np.clip(np.asarray(x, np.float64), 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-

@@ -36,8 +36,9 @@ def _scene():
     import raytrax as rt
 
     # The scene of tests/test_devices.py: small, quick to compile.
-    return rt.load_scene(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes",
-                                      "ball_on_checker.toml"))
+    return rt.load_scene(
+        os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "ball_on_checker.toml")
+    )
 
 
 def _step(report, name, fn):
@@ -52,8 +53,9 @@ def _step(report, name, fn):
         tb = traceback.format_exc()
         print(f"--- {name} ---\n{tb}", file=sys.stderr, flush=True)
         frames = [ln.strip() for ln in tb.splitlines() if ln.strip().startswith("File ")]
-        report[name] = dict(ok=False, error=f"{type(e).__name__}: {msg[:400]}",
-                            where=" <- ".join(reversed(frames[-3:]))[:600])
+        report[name] = dict(
+            ok=False, error=f"{type(e).__name__}: {msg[:400]}", where=" <- ".join(reversed(frames[-3:]))[:600]
+        )
         return None
 
 
@@ -64,15 +66,26 @@ def worker(args):
     jax.config.update("jax_num_cpu_devices", args.devices_per_process)
     rep = dict(process=args.worker)
     if args.worker >= 0:
-        _step(rep, "initialize", lambda: jax.distributed.initialize(
-            coordinator_address=f"localhost:{args.port}", num_processes=args.processes, process_id=args.worker,
-            initialization_timeout=120))
+        _step(
+            rep,
+            "initialize",
+            lambda: jax.distributed.initialize(
+                coordinator_address=f"localhost:{args.port}",
+                num_processes=args.processes,
+                process_id=args.worker,
+                initialization_timeout=120,
+            ),
+        )
     import numpy as np
 
     import raytrax as rt
 
-    rep.update(process_index=jax.process_index(), process_count=jax.process_count(),
-               local_devices=[str(d) for d in jax.local_devices()], global_devices=[str(d) for d in jax.devices()])
+    rep.update(
+        process_index=jax.process_index(),
+        process_count=jax.process_count(),
+        local_devices=[str(d) for d in jax.local_devices()],
+        global_devices=[str(d) for d in jax.devices()],
+    )
     scene = _scene()
     out = dict()
 
@@ -89,8 +102,9 @@ def worker(args):
 
     # 1. Plain rt.render over every global device: the scene's arrays are
     #    process-local (committed to no device, built on local device 0).
-    img = _step(rep, "render_all_devices", lambda: jax.block_until_ready(rt.render(
-        scene, tile_rays=TILE_RAYS, devices="all")))
+    img = _step(
+        rep, "render_all_devices", lambda: jax.block_until_ready(rt.render(scene, tile_rays=TILE_RAYS, devices="all"))
+    )
     if img is not None:
         rep["image_sharding"] = str(img.sharding)
         rep["fully_addressable"] = bool(img.is_fully_addressable)
@@ -101,8 +115,9 @@ def worker(args):
         else:
             from jax.experimental import multihost_utils
 
-            out["render"] = _step(rep, "process_allgather", lambda: np.asarray(
-                multihost_utils.process_allgather(img, tiled=True)))
+            out["render"] = _step(
+                rep, "process_allgather", lambda: np.asarray(multihost_utils.process_allgather(img, tiled=True))
+            )
 
     # 2. The same with the scene first made a global, replicated array on the
     #    global mesh (what multi-process jit expects of its arguments). The mesh
@@ -116,13 +131,17 @@ def worker(args):
         rep_sh = NamedSharding(mesh, P())
         dyn, static = eqx.partition(scene, eqx.is_array)
         dyn = jax.tree_util.tree_map(
-            lambda x: jax.make_array_from_process_local_data(rep_sh, np.asarray(x), x.shape), dyn)
+            lambda x: jax.make_array_from_process_local_data(rep_sh, np.asarray(x), x.shape), dyn
+        )
         return eqx.combine(dyn, static)
 
     gscene = _step(rep, "make_global_scene", lambda: global_scene(jax.sharding.AxisType.Auto))
     if gscene is not None:
-        img2 = _step(rep, "render_global_scene", lambda: jax.block_until_ready(rt.render(
-            gscene, tile_rays=TILE_RAYS, devices="all")))
+        img2 = _step(
+            rep,
+            "render_global_scene",
+            lambda: jax.block_until_ready(rt.render(gscene, tile_rays=TILE_RAYS, devices="all")),
+        )
         if img2 is not None:
             rep["image2_sharding"] = str(img2.sharding)
             if img2.is_fully_addressable:
@@ -130,8 +149,9 @@ def worker(args):
             else:
                 from jax.experimental import multihost_utils
 
-                out["render_global"] = _step(rep, "process_allgather2", lambda: np.asarray(
-                    multihost_utils.process_allgather(img2, tiled=True)))
+                out["render_global"] = _step(
+                    rep, "process_allgather2", lambda: np.asarray(multihost_utils.process_allgather(img2, tiled=True))
+                )
 
     # 3. Gradient across processes: d mean(img^2) / d light position, with the
     #    process-local scene, the global scene (Auto axes), and a global scene on
@@ -145,6 +165,7 @@ def worker(args):
             g = eqx.filter_grad(lambda s: jnp.mean(rt.render(s, tile_rays=TILE_RAYS, devices="all") ** 2))(s)
             p = g.lights.position
             return np.asarray(p if p.is_fully_addressable else multihost_utils.process_allgather(p, tiled=True))
+
         return fn
 
     out["grad_local"] = _step(rep, "grad_local_scene", grad_of(scene))
@@ -178,20 +199,43 @@ def launcher(args):
     here = os.path.abspath(__file__)
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     env.pop("XLA_FLAGS", None)  # device counts come from jax_num_cpu_devices
-    base = [sys.executable, here, "--out", out, "--processes", str(args.processes), "--devices-per-process",
-            str(args.devices_per_process)]
+    base = [
+        sys.executable,
+        here,
+        "--out",
+        out,
+        "--processes",
+        str(args.processes),
+        "--devices-per-process",
+        str(args.devices_per_process),
+    ]
     print("reference: 1 process, 1 device ...", flush=True)
-    ref = subprocess.run(base + ["--worker", "-1", "--devices-per-process", "1"], env=env, capture_output=True,
-                         text=True, timeout=args.timeout)
+    ref = subprocess.run(
+        base + ["--worker", "-1", "--devices-per-process", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=args.timeout,
+    )
     if ref.returncode != 0:
         print(ref.stderr[-3000:])
         return 1
     port = _free_port()
-    print(f"{args.processes} processes x {args.devices_per_process} CPU devices, coordinator localhost:{port} ...",
-          flush=True)
+    print(
+        f"{args.processes} processes x {args.devices_per_process} CPU devices, coordinator localhost:{port} ...",
+        flush=True,
+    )
     t0 = time.perf_counter()
-    procs = [subprocess.Popen(base + ["--worker", str(i), "--port", str(port)], env=env, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for i in range(args.processes)]
+    procs = [
+        subprocess.Popen(
+            base + ["--worker", str(i), "--port", str(port)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(args.processes)
+    ]
     reports = []
     for i, p in enumerate(procs):
         try:
@@ -211,12 +255,16 @@ def launcher(args):
     reference = np.load(os.path.join(out, "reference.npy"))
     for r in reports:
         i = r["process"]
-        print(f"process {i}: process_index {r.get('process_index')} of {r.get('process_count')}, "
-              f"local devices {r.get('local_devices')}, {len(r.get('global_devices', []))} global devices")
+        print(
+            f"process {i}: process_index {r.get('process_index')} of {r.get('process_count')}, "
+            f"local devices {r.get('local_devices')}, {len(r.get('global_devices', []))} global devices"
+        )
         for k, v in r.items():
             if isinstance(v, dict) and "ok" in v:
-                print(f"  {k:22s} {'ok' if v['ok'] else 'FAILED'}" + (f" ({v['s']} s)" if v["ok"] else
-                                                                      f": {v['error']}\n  {'':22s} at {v['where']}"))
+                print(
+                    f"  {k:22s} {'ok' if v['ok'] else 'FAILED'}"
+                    + (f" ({v['s']} s)" if v["ok"] else f": {v['error']}\n  {'':22s} at {v['where']}")
+                )
         for k in ("image_sharding", "fully_addressable", "fully_replicated", "image2_sharding"):
             if k in r:
                 print(f"  {k:22s} {r[k]}")
@@ -226,17 +274,21 @@ def launcher(args):
                 img = np.load(f)
                 same = img.shape == reference.shape and np.allclose(img, reference, rtol=0, atol=1e-6)
                 err = float(np.abs(img - reference).max()) if img.shape == reference.shape else float("nan")
-                print(f"  {what:22s} image {img.shape}: {'EQUALS' if same else 'DIFFERS FROM'} the single-process "
-                      f"render (max |diff| {err:.2e})")
+                print(
+                    f"  {what:22s} image {img.shape}: {'EQUALS' if same else 'DIFFERS FROM'} the single-process "
+                    f"render (max |diff| {err:.2e})"
+                )
         gref = np.load(os.path.join(out, "reference-grad.npy"))
         for what in ("grad_local", "grad_global", "grad_global_explicit"):
             f = os.path.join(out, f"p{i}-{what}.npy")
             if os.path.exists(f):
                 g = np.load(f)
                 same = np.allclose(g, gref, rtol=1e-5, atol=1e-9)
-                print(f"  {what:22s} d loss / d light position {np.round(g.ravel(), 6).tolist()}: "
-                      f"{'EQUALS' if same else 'DIFFERS FROM'} the single-process gradient "
-                      f"{np.round(gref.ravel(), 6).tolist()}")
+                print(
+                    f"  {what:22s} d loss / d light position {np.round(g.ravel(), 6).tolist()}: "
+                    f"{'EQUALS' if same else 'DIFFERS FROM'} the single-process gradient "
+                    f"{np.round(gref.ravel(), 6).tolist()}"
+                )
     return 0
 
 

@@ -14,14 +14,32 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
 
-def physical_scene(width=160, height=120, spp=16, max_depth=5, *, diffuse=True, mirror=True, glass=True,
-                   box=True, tetra=True, lights=(0, 1)):
+def physical_scene(
+    width=160,
+    height=120,
+    spp=16,
+    max_depth=5,
+    *,
+    diffuse=True,
+    mirror=True,
+    glass=True,
+    box=True,
+    tetra=True,
+    lights=(0, 1),
+):
     """Floor, diffuse / mirror / glass spheres, a rotated box, a tetrahedron, two point lights.
 
     The keyword switches drop objects (used to isolate which light paths differ).
     """
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth,
-                        background=(0.0, 0.0, 0.0), name="physical")
+    b = rt.SceneBuilder(
+        "physical",
+        width=width,
+        height=height,
+        spp=spp,
+        max_depth=max_depth,
+        background=(0.0, 0.0, 0.0),
+        name="physical",
+    )
     b.camera(position=(0.0, 2.2, 7.0), look_at=(0.0, 0.8, 0.0), up=(0.0, 1.0, 0.0), fov=40.0)
     all_lights = [((3.0, 6.0, 4.0), (120.0, 108.0, 90.0)), ((-4.0, 5.0, 2.0), (36.0, 45.0, 66.0))]
     for i in lights:
@@ -68,20 +86,34 @@ def seed_scene(width=640, height=480, spp=4, max_depth=5):
     if hasattr(rt, "load_scene") and os.path.exists(path):
         sc = rt.load_scene(path)
         return sc.replace_settings(width=width, height=height, spp=spp, max_depth=max_depth)
-    b = rt.SceneBuilder("classic", width=width, height=height, spp=spp, max_depth=max_depth,
-                        background=(0.0, 0.0, 0.0), ambient=(0.2, 0.2, 0.2), name="cosc363")
+    b = rt.SceneBuilder(
+        "classic",
+        width=width,
+        height=height,
+        spp=spp,
+        max_depth=max_depth,
+        background=(0.0, 0.0, 0.0),
+        ambient=(0.2, 0.2, 0.2),
+        name="cosc363",
+    )
     b.camera(position=(0, 0, 0), look_at=(0, 0, -1), up=(0, 1, 0), fov=2 * math.degrees(math.atan(10 / 40)))
     b.light((10.0, 40.0, -5.0), (1.0, 1.0, 1.0))
     b.light((-10.0, 40.0, -5.0), (1.0, 1.0, 1.0))
-    b.material("floor", color=(0.9, 0.9, 0.9), specular=0.0,
-               texture=rt.Checker(color2=(0.2, 0.2, 0.2), scale=0.2))
+    b.material("floor", color=(0.9, 0.9, 0.9), specular=0.0, texture=rt.Checker(color2=(0.2, 0.2, 0.2), scale=0.2))
     b.material("purple_mirror", color=(0.6, 0.5, 0.8), specular=1.0, shininess=50.0, reflectivity=0.8)
-    b.material("planet", color=(1.0, 1.0, 1.0), specular=0.3, shininess=20.0,
-               texture=rt.ImageTexture(rt.builtin_image("moon")))
-    b.material("stripes", color=(0.1, 0.7, 0.2), specular=0.5, shininess=30.0,
-               texture=rt.Stripes(color2=(0.0, 0.0, 0.0), scale=8.0, direction=(1.0, 1.0)))
-    b.material("glass", color=(0.9, 0.9, 1.0), specular=1.0, shininess=100.0, reflectivity=0.1,
-               transparency=0.8, ior=1.5)
+    b.material(
+        "planet", color=(1.0, 1.0, 1.0), specular=0.3, shininess=20.0, texture=rt.ImageTexture(rt.builtin_image("moon"))
+    )
+    b.material(
+        "stripes",
+        color=(0.1, 0.7, 0.2),
+        specular=0.5,
+        shininess=30.0,
+        texture=rt.Stripes(color2=(0.0, 0.0, 0.0), scale=8.0, direction=(1.0, 1.0)),
+    )
+    b.material(
+        "glass", color=(0.9, 0.9, 1.0), specular=1.0, shininess=100.0, reflectivity=0.1, transparency=0.8, ior=1.5
+    )
     b.material("cube", color=(0.8, 0.3, 0.1), specular=0.5, shininess=20.0)
     b.material("tetra", color=(0.9, 0.8, 0.1), specular=0.5, shininess=20.0)
     b.quad([(-40, -15, -40), (40, -15, -40), (40, -15, -200), (-40, -15, -200)], "floor")
@@ -132,8 +164,11 @@ def extra_scenes(width=96, height=72, spp=16, max_depth=6):
     the floor, a light inside glass, a mirror quad seen from both sides, and high
     index glass with total internal reflection."""
 
-    def base(cam=(0.0, 2.2, 7.0), at=(0.0, 0.8, 0.0), lights=(((3.0, 6.0, 4.0), (120.0, 108.0, 90.0)),
-                                                              ((-4.0, 5.0, 2.0), (36.0, 45.0, 66.0)))):
+    def base(
+        cam=(0.0, 2.2, 7.0),
+        at=(0.0, 0.8, 0.0),
+        lights=(((3.0, 6.0, 4.0), (120.0, 108.0, 90.0)), ((-4.0, 5.0, 2.0), (36.0, 45.0, 66.0))),
+    ):
         b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=max_depth)
         b.camera(position=cam, look_at=at, fov=45.0)
         for p, i in lights:
@@ -150,28 +185,43 @@ def extra_scenes(width=96, height=72, spp=16, max_depth=6):
     out = {}
     # Glass solids are lifted 0.01 off the floor: a face coplanar with the floor is a
     # tie that the two renderers break differently (see benchmarks/README.md).
-    b = base(); b.box((-1, 0.01, 0), (0.2, 1.21, 1.2), "glass", rotation=(0, 35, 0)); out["glass box"] = b
-    b = base(); b.tetrahedron((0.5, 0.01 + 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass"); out["glass tetrahedron"] = b
-    b = base(); b.tetrahedron((0.5, 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass")
+    b = base()
+    b.box((-1, 0.01, 0), (0.2, 1.21, 1.2), "glass", rotation=(0, 35, 0))
+    out["glass box"] = b
+    b = base()
+    b.tetrahedron((0.5, 0.01 + 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass")
+    out["glass tetrahedron"] = b
+    b = base()
+    b.tetrahedron((0.5, 1.5 * math.sqrt(6) / 12, 0.5), 1.5, "glass")
     out["glass tetrahedron on floor (tie)"] = b
-    b = base(); b.sphere((0, 1, 0), 1, "tinted"); out["diffuse + mirror mixture"] = b
+    b = base()
+    b.sphere((0, 1, 0), 1, "tinted")
+    out["diffuse + mirror mixture"] = b
     b = base()
     b.quad([(-2, 0, -1.5), (2, 0, -1.5), (2, 2.5, -2), (-2, 2.5, -2)], "wall")
     b.triangle([(1, 0, 1), (2.5, 0, 0.5), (1.8, 1.8, 0.8)], "wall")
     b.sphere((0, 0.7, 0.5), 0.7, "glass")
     out["quad + triangle + glass"] = b
-    b = base(); b.sphere((0, 1, 0), 1, "glass"); b.sphere((0, 1, 0), 0.5, "wall"); out["sphere inside glass"] = b
+    b = base()
+    b.sphere((0, 1, 0), 1, "glass")
+    b.sphere((0, 1, 0), 0.5, "wall")
+    out["sphere inside glass"] = b
     b = base(cam=(0, -2, 6), at=(0, 0.5, 0), lights=(((1, 4, 2), (100, 100, 100)), ((0, -3, 3), (20, 20, 20))))
     b.sphere((0, 1, 0), 1, "wall")
     out["camera below the floor"] = b
-    b = base(lights=(((0, 1, 0), (50, 50, 50)), ((3, 5, 3), (60, 60, 60)))); b.sphere((0, 1, 0), 0.8, "glass")
+    b = base(lights=(((0, 1, 0), (50, 50, 50)), ((3, 5, 3), (60, 60, 60))))
+    b.sphere((0, 1, 0), 0.8, "glass")
     out["light inside glass"] = b
     b = base(cam=(0, 1.5, -6), at=(0, 1, 0), lights=(((2, 4, -3), (80, 80, 80)),))
     b.quad([(-2, 0, 1), (2, 0, 1), (2, 2.5, 0.5), (-2, 2.5, 0.5)], "mirror")
     b.sphere((0.5, 0.5, -1.5), 0.5, "wall")
     out["mirror quad, back side"] = b
-    b = base(); b.sphere((0, 1, 0), 1, "diamond"); b.box((-2.5, 0, -2), (-1.5, 1, -1), "wall"); out["ior 2.4 sphere"] = b
-    b = base(); b.box((-0.7, 0, -0.7), (0.7, 1.4, 0.7), "diamond", rotation=(20, 30, 10))
+    b = base()
+    b.sphere((0, 1, 0), 1, "diamond")
+    b.box((-2.5, 0, -2), (-1.5, 1, -1), "wall")
+    out["ior 2.4 sphere"] = b
+    b = base()
+    b.box((-0.7, 0, -0.7), (0.7, 1.4, 0.7), "diamond", rotation=(20, 30, 10))
     b.sphere((1.5, 0.4, -2), 0.4, "wall")
     out["ior 2.4 tilted box (TIR)"] = b
     return {k: v.build() for k, v in out.items()}
@@ -184,7 +234,6 @@ def spp_list(text):
         v = [int(c) for c in text.split(",")]
     except ValueError:
         v = []
-    if not v or any(s < 1 or int(s ** 0.5) ** 2 != s for s in v):
+    if not v or any(s < 1 or int(s**0.5) ** 2 != s for s in v):
         raise argparse.ArgumentTypeError(f"expected comma-separated square numbers (e.g. 256,1024), got {text!r}")
     return v
-

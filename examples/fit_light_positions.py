@@ -39,8 +39,7 @@ NAMES = ["light[0].position", "light[1].position"]
 
 def make_scene(width=96, height=72, lights=TRUE_LIGHTS):
     """A floor, a back wall and two spheres lit by a warm and a cool light."""
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=1,
-                        background=(0.05, 0.05, 0.05))
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=1, background=(0.05, 0.05, 0.05))
     b.camera(position=(0, 3, 9), look_at=(0, 0.8, 0), fov=45)
     b.light(lights[0], intensity=(30, 22, 14))
     b.light(lights[1], intensity=(10, 16, 30))
@@ -55,13 +54,13 @@ def make_scene(width=96, height=72, lights=TRUE_LIGHTS):
 
 
 def start_positions():
-    return {n: np.asarray(p, float) + np.asarray(o, float)
-            for n, p, o in zip(NAMES, TRUE_LIGHTS, START_OFFSETS)}
+    return {n: np.asarray(p, float) + np.asarray(o, float) for n, p, o in zip(NAMES, TRUE_LIGHTS, START_OFFSETS)}
 
 
 def errors(values):
-    return [float(np.linalg.norm(np.asarray(values[n], float) - np.asarray(p, float)))
-            for n, p in zip(NAMES, TRUE_LIGHTS)]
+    return [
+        float(np.linalg.norm(np.asarray(values[n], float) - np.asarray(p, float))) for n, p in zip(NAMES, TRUE_LIGHTS)
+    ]
 
 
 def run(width=96, height=72, steps=100, solver="levenberg_marquardt", out=None, verbose=True):
@@ -74,8 +73,9 @@ def run(width=96, height=72, steps=100, solver="levenberg_marquardt", out=None, 
     def report(step, loss, values):
         if verbose:
             e = errors(values)
-            print(f"step {step:3d}  loss {loss:.3e}  |light0 - truth| {e[0]:.5f}  |light1 - truth| {e[1]:.5f}",
-                  flush=True)
+            print(
+                f"step {step:3d}  loss {loss:.3e}  |light0 - truth| {e[0]:.5f}  |light1 - truth| {e[1]:.5f}", flush=True
+            )
 
     res = rt.fit(start, target, NAMES, solver=solver, max_steps=steps, progress=False, callback=report)
     err = errors(res.params)
@@ -83,8 +83,10 @@ def run(width=96, height=72, steps=100, solver="levenberg_marquardt", out=None, 
         print(f"{res.message}; {res.steps} steps in {res.seconds:.1f} s (compilation included)")
         for n, p in zip(NAMES, TRUE_LIGHTS):
             print(f"  {n}: fitted {np.round(res.params[n], 4).tolist()}  true {list(p)}")
-        print(f"  final errors: {err[0]:.2e}, {err[1]:.2e} world units "
-              f"({100 * max(err) / SCENE_SIZE:.2g}% of the scene's size)")
+        print(
+            f"  final errors: {err[0]:.2e}, {err[1]:.2e} world units "
+            f"({100 * max(err) / SCENE_SIZE:.2g}% of the scene's size)"
+        )
     if out:
         save_figures(out, target, rt.render(start), rt.render(res.scene), res, verbose)
     return res, err
@@ -97,8 +99,12 @@ def save_figures(out, target, start_img, fit_img, res, verbose=True):
     plt = pyplot()
 
     diff = np.abs(np.asarray(fit_img) - np.asarray(target))
-    panels = [("target", target), ("start", start_img), ("fit", fit_img),
-              (f"|fit - target| x 10 (max {diff.max():.1e})", diff * 10)]
+    panels = [
+        ("target", target),
+        ("start", start_img),
+        ("fit", fit_img),
+        (f"|fit - target| x 10 (max {diff.max():.1e})", diff * 10),
+    ]
     p1 = image_grid(os.path.join(out, "fit_light_positions.png"), panels)
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -124,8 +130,11 @@ def main(argv=None):
     ap.add_argument("--width", type=int, default=96)
     ap.add_argument("--height", type=int, default=72)
     ap.add_argument("--steps", type=int, default=100, help="maximum solver steps")
-    ap.add_argument("--solver", default="levenberg_marquardt",
-                    help="levenberg_marquardt, gauss_newton, dogleg, bfgs, gradient_descent, nonlinear_cg")
+    ap.add_argument(
+        "--solver",
+        default="levenberg_marquardt",
+        help="levenberg_marquardt, gauss_newton, dogleg, bfgs, gradient_descent, nonlinear_cg",
+    )
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "out"))
     a = ap.parse_args(argv)
     t = time.perf_counter()

@@ -41,8 +41,7 @@ NAME = "object[1].center"
 def make_scene(width=48, height=36, spp=16, center=TRUE):
     """A floor seen from above; a ball above it, out of view (39 degrees off the
     camera's axis, the view's half-angles are 20 and 26 degrees); one light above."""
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=1,
-                        background=(0.0, 0.0, 0.0))
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=1, background=(0.0, 0.0, 0.0))
     b.camera(position=(0.0, 2.0, 3.5), look_at=(0.0, 0.0, 0.0), fov=40)
     b.light((0.5, 6.0, 0.0), intensity=(60.0, 56.0, 50.0))
     b.material("floor", color=(0.8, 0.8, 0.8))
@@ -61,20 +60,32 @@ def run(width=48, height=36, spp=16, steps=30, out=None, verbose=True):
     start = make_scene(width, height, spp, START)
     results = {}
     for label, kw in (("plain AD", {}), ("edge gradients", {"edge_gradients": True})):
+
         def report(step, loss, values, label=label):
             if verbose:
                 c = np.round(np.asarray(values[NAME], float), 4).tolist()
-                print(f"[{label}] step {step:3d}  loss {loss:.3e}  centre {c}  error {error(values):.4f}",
-                      flush=True)
+                print(f"[{label}] step {step:3d}  loss {loss:.3e}  centre {c}  error {error(values):.4f}", flush=True)
 
-        res = rt.fit(start, target, [NAME], solver="levenberg_marquardt", max_steps=steps, progress=False,
-                     callback=report, render_kwargs=kw, check=False, throw=False)
+        res = rt.fit(
+            start,
+            target,
+            [NAME],
+            solver="levenberg_marquardt",
+            max_steps=steps,
+            progress=False,
+            callback=report,
+            render_kwargs=kw,
+            check=False,
+            throw=False,
+        )
         err = error(res.params)
         results[label] = (res, err)
         if verbose:
             c = np.round(np.asarray(res.params[NAME], float), 4).tolist()
-            print(f"[{label}] {res.message}; {res.steps} steps, {res.seconds:.1f} s; "
-                  f"final centre {c}, truth {list(TRUE)}, error {err:.2e}")
+            print(
+                f"[{label}] {res.message}; {res.steps} steps, {res.seconds:.1f} s; "
+                f"final centre {c}, truth {list(TRUE)}, error {err:.2e}"
+            )
     if out:
         save_figures(out, target, rt.render(start), results, verbose)
     return results

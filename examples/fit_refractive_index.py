@@ -43,8 +43,7 @@ NAME = "material.glass.ior"
 
 
 def make_scene(width=96, height=72, ior=TRUE_IOR):
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=3,
-                        background=(0.0, 0.0, 0.0))
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=3, background=(0.0, 0.0, 0.0))
     b.camera(position=(0, 0.5, 7), look_at=(0, 0, 0), fov=32)
     b.light((4.0, 5.0, -5.0), intensity=(120, 120, 120))  # beside the ball: its shadow misses the wall
     b.material("wall", color=(0.9, 0.9, 0.85), texture=rt.Checker(color2=(0.1, 0.15, 0.4), scale=0.2))
@@ -54,8 +53,7 @@ def make_scene(width=96, height=72, ior=TRUE_IOR):
     return b.build()
 
 
-def run(width=96, height=72, steps=100, solver="levenberg_marquardt", start_ior=START_IOR, out=None,
-        verbose=True):
+def run(width=96, height=72, steps=100, solver="levenberg_marquardt", start_ior=START_IOR, out=None, verbose=True):
     """Render the target, fit, optionally save the pictures; returns the
     :class:`raytrax.FitResult` and the final ior error."""
     scene = make_scene(width, height)
@@ -86,8 +84,12 @@ def save_figures(out, target, start_img, fit_img, res, verbose=True):
     diff = np.abs(np.asarray(fit_img) - np.asarray(target))
     ior0 = float(res.initial_params[NAME])
     ior1 = float(res.params[NAME])
-    panels = [(f"target (ior {TRUE_IOR})", target), (f"start (ior {ior0:.2f})", start_img),
-              (f"fit (ior {ior1:.5f})", fit_img), (f"|fit - target| x 10 (max {diff.max():.1e})", diff * 10)]
+    panels = [
+        (f"target (ior {TRUE_IOR})", target),
+        (f"start (ior {ior0:.2f})", start_img),
+        (f"fit (ior {ior1:.5f})", fit_img),
+        (f"|fit - target| x 10 (max {diff.max():.1e})", diff * 10),
+    ]
     p1 = image_grid(os.path.join(out, "fit_refractive_index.png"), panels)
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -113,8 +115,11 @@ def main(argv=None):
     ap.add_argument("--height", type=int, default=72)
     ap.add_argument("--steps", type=int, default=100, help="maximum solver steps")
     ap.add_argument("--start", type=float, default=START_IOR, help="starting ior")
-    ap.add_argument("--solver", default="levenberg_marquardt",
-                    help="levenberg_marquardt, gauss_newton, dogleg, bfgs, gradient_descent, nonlinear_cg")
+    ap.add_argument(
+        "--solver",
+        default="levenberg_marquardt",
+        help="levenberg_marquardt, gauss_newton, dogleg, bfgs, gradient_descent, nonlinear_cg",
+    )
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "out"))
     a = ap.parse_args(argv)
     t = time.perf_counter()

@@ -49,8 +49,7 @@ def true_texture(n=TEX):
 
 def make_scene(width=96, height=72, texture=None):
     tex = true_texture() if texture is None else np.asarray(texture, np.float32)
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=1,
-                        background=(0.0, 0.0, 0.0))
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=1, background=(0.0, 0.0, 0.0))
     b.camera(position=(1.0, 0.3, 6.0), look_at=(0, 0, 0), fov=40)
     b.light((-1.5, 1.5, 4.5), intensity=(40, 40, 40))
     b.material("poster", color=(1, 1, 1), texture=rt.ImageTexture(tex))
@@ -70,8 +69,7 @@ def smoothness(weight):
     return reg
 
 
-def run(width=128, height=96, steps=300, solver="lbfgs", noise=0.01, smooth=0.0, out=None, verbose=True,
-        seed=0):
+def run(width=128, height=96, steps=300, solver="lbfgs", noise=0.01, smooth=0.0, out=None, verbose=True, seed=0):
     scene = make_scene(width, height)
     clean = np.asarray(rt.render(scene))
     rng = np.random.default_rng(seed)
@@ -86,14 +84,24 @@ def run(width=128, height=96, steps=300, solver="lbfgs", noise=0.01, smooth=0.0,
         if verbose and (step % 10 == 0 or step < 5):
             print(f"step {step:4d}  loss {loss:.4e}  texture RMS error {tex_rmse(values[NAME]):.4f}", flush=True)
 
-    res = rt.fit(start, target, [NAME], solver=solver, max_steps=steps, progress=False, callback=report,
-                 regularizer=smoothness(smooth) if smooth > 0 else None)
+    res = rt.fit(
+        start,
+        target,
+        [NAME],
+        solver=solver,
+        max_steps=steps,
+        progress=False,
+        callback=report,
+        regularizer=smoothness(smooth) if smooth > 0 else None,
+    )
     err = tex_rmse(res.params[NAME])
     if verbose:
         print(f"{res.message}; {res.steps} steps in {res.seconds:.1f} s (compilation included)")
-        print(f"  texture RMS error: start {tex_rmse(res.initial_params[NAME]):.4f} -> fit {err:.4f} "
-              f"(noise std in the image {noise}); loss {res.loss_history[0]:.3e} -> {res.loss:.3e} "
-              f"(noise variance {noise ** 2:.1e})")
+        print(
+            f"  texture RMS error: start {tex_rmse(res.initial_params[NAME]):.4f} -> fit {err:.4f} "
+            f"(noise std in the image {noise}); loss {res.loss_history[0]:.3e} -> {res.loss:.3e} "
+            f"(noise variance {noise**2:.1e})"
+        )
     if out:
         save_figures(out, target, rt.render(start), rt.render(res.scene), truth, res, noise, verbose)
     return res, err
@@ -106,14 +114,13 @@ def save_figures(out, target, start_img, fit_img, truth, res, noise=0.0, verbose
     plt = pyplot()
 
     row0 = [("noisy target", target), ("start render", start_img), ("fit render", fit_img)]
-    row1 = [("true texture", truth), ("start texture", res.initial_params[NAME]),
-            ("fitted texture", res.params[NAME])]
+    row1 = [("true texture", truth), ("start texture", res.initial_params[NAME]), ("fitted texture", res.params[NAME])]
     p1 = image_grid(os.path.join(out, "fit_texture.png"), row0 + row1, rows=2)
 
     fig, ax = plt.subplots(figsize=(5, 3.6))
     ax.semilogy(res.loss_history, marker=".", label="loss")
     if noise > 0:
-        ax.axhline(noise ** 2, color="grey", ls="--", label="noise variance")
+        ax.axhline(noise**2, color="grey", ls="--", label="noise variance")
     ax.legend()
     ax.set_xlabel("step")
     ax.set_ylabel("loss (MSE)")

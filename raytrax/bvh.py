@@ -138,9 +138,10 @@ def prepare(bvh: TriangleBVH, soa: dict) -> Accel:
     # thickness, and of its distance from the origin) so that the rounding of the slab
     # test never drops a leaf whose triangle the differently rounded triangle test hits.
     ext = jnp.maximum(jnp.maximum(his[0] - los[0], his[1] - los[1]), his[2] - los[2])
-    size = jnp.maximum(jnp.maximum(jnp.abs(los[0]), jnp.abs(his[0])),
-                       jnp.maximum(jnp.maximum(jnp.abs(los[1]), jnp.abs(his[1])),
-                                   jnp.maximum(jnp.abs(los[2]), jnp.abs(his[2]))))
+    size = jnp.maximum(
+        jnp.maximum(jnp.abs(los[0]), jnp.abs(his[0])),
+        jnp.maximum(jnp.maximum(jnp.abs(los[1]), jnp.abs(his[1])), jnp.maximum(jnp.abs(los[2]), jnp.abs(his[2]))),
+    )
     eps = 1e-4 * ext + 1e-5 * size + 1e-30
     box = {}
     for name, lo, hi in zip("xyz", los, his):

@@ -63,24 +63,50 @@ def _build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="raytrax: a differentiable Whitted-style raytracer in JAX.")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    r = sub.add_parser("render", help="render a scene file to an image",
-                       description="Render a scene file (default: the seed scene cosc363.toml) to an image. "
-                                   "The output format follows the extension: .png/.jpg (sRGB) or .exr (linear float).")
-    r.add_argument("scene", nargs="?", default=None, metavar="SCENE",
-                   help="a TOML scene file (default: the seed scene cosc363.toml)")
-    r.add_argument("-o", "--output", default=None, metavar="OUT",
-                   help="output image, .png, .jpg or .exr (default: <scene name>.png in the current folder)")
+    r = sub.add_parser(
+        "render",
+        help="render a scene file to an image",
+        description="Render a scene file (default: the seed scene cosc363.toml) to an image. "
+        "The output format follows the extension: .png/.jpg (sRGB) or .exr (linear float).",
+    )
+    r.add_argument(
+        "scene",
+        nargs="?",
+        default=None,
+        metavar="SCENE",
+        help="a TOML scene file (default: the seed scene cosc363.toml)",
+    )
+    r.add_argument(
+        "-o",
+        "--output",
+        default=None,
+        metavar="OUT",
+        help="output image, .png, .jpg or .exr (default: <scene name>.png in the current folder)",
+    )
     r.add_argument("--width", type=_integer("width"), help="image width in pixels")
     r.add_argument("--height", type=_integer("height"), help="image height in pixels")
     r.add_argument("--spp", type=_integer("spp"), help="samples per pixel, a square number")
     r.add_argument("--depth", type=_integer("depth"), help="maximum number of specular bounces (max_depth)")
-    r.add_argument("--bits", type=int, choices=(8, 16), default=None,
-                   help="PNG bit depth (default 8); EXR: 16 for half floats (default 32-bit float)")
+    r.add_argument(
+        "--bits",
+        type=int,
+        choices=(8, 16),
+        default=None,
+        help="PNG bit depth (default 8); EXR: 16 for half floats (default 32-bit float)",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
-    i = sub.add_parser("info", help="summarise a scene file",
-                       description="Summarise a scene: settings, camera, lights, materials, objects, cost.")
-    i.add_argument("scene", nargs="?", default=None, metavar="SCENE",
-                   help="a TOML scene file (default: the seed scene cosc363.toml)")
+    i = sub.add_parser(
+        "info",
+        help="summarise a scene file",
+        description="Summarise a scene: settings, camera, lights, materials, objects, cost.",
+    )
+    i.add_argument(
+        "scene",
+        nargs="?",
+        default=None,
+        metavar="SCENE",
+        help="a TOML scene file (default: the seed scene cosc363.toml)",
+    )
     return p
 
 
@@ -167,8 +193,10 @@ def _cmd_render(args) -> int:
     if out is not None:
         ext = os.path.splitext(out)[1].lower()
         if ext not in WRITE_FORMATS:
-            raise UsageError(f"{out}: cannot write images of type {ext or '(no extension)'!r}; expected one of "
-                             f"{', '.join(WRITE_FORMATS)}")
+            raise UsageError(
+                f"{out}: cannot write images of type {ext or '(no extension)'!r}; expected one of "
+                f"{', '.join(WRITE_FORMATS)}"
+            )
         allowed = WRITE_FORMATS[ext][0]
         if args.bits is not None and args.bits not in allowed:
             raise UsageError(f"--bits: expected one of {allowed} for {ext} files, got {args.bits}")
@@ -183,8 +211,11 @@ def _cmd_render(args) -> int:
     if out is None:
         out = f"{desc.name or 'render'}.png"
     st = scene.settings
-    _say(f"loaded {desc.source} in {time.perf_counter() - t_start:.1f} s: {st.width} x {st.height}, "
-         f"spp {st.spp}, depth {st.max_depth}, {st.shading} shading", q)
+    _say(
+        f"loaded {desc.source} in {time.perf_counter() - t_start:.1f} s: {st.width} x {st.height}, "
+        f"spp {st.spp}, depth {st.max_depth}, {st.shading} shading",
+        q,
+    )
 
     import jax
     import numpy as np
@@ -205,15 +236,26 @@ def _cmd_render(args) -> int:
             compiled, leaves, _ = _compiled_render(scene, use_cache=False)
             img = np.asarray(jax.block_until_ready(compiled(leaves)))
     bits = args.bits
-    meta = dict(scene=desc.name, source=os.path.abspath(path), width=st.width, height=st.height, spp=st.spp,
-                max_depth=st.max_depth, shading=st.shading, render_time_s=round(ph_r.elapsed, 4),
-                compile_time_s=round(ph_c.elapsed, 4))
+    meta = dict(
+        scene=desc.name,
+        source=os.path.abspath(path),
+        width=st.width,
+        height=st.height,
+        spp=st.spp,
+        max_depth=st.max_depth,
+        shading=st.shading,
+        render_time_s=round(ph_r.elapsed, 4),
+        compile_time_s=round(ph_c.elapsed, 4),
+    )
     if _INTERRUPTED.is_set():  # a Ctrl-C that JAX swallowed mid-compile still means: no output
         raise KeyboardInterrupt
     save_image(out, img, metadata=meta, bits=bits)
     total = time.perf_counter() - t_start
-    _say(f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
-         f"(compile {ph_c.elapsed:.1f} s, render {ph_r.elapsed:.1f} s)", q)
+    _say(
+        f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
+        f"(compile {ph_c.elapsed:.1f} s, render {ph_r.elapsed:.1f} s)",
+        q,
+    )
     return 0
 
 
@@ -292,8 +334,17 @@ def _executable_key(scene) -> Optional[str]:
         return None
     dev = jax.devices()[0]
     cfg = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
-    parts += [jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, dev.client.platform_version,
-              str(jax.device_count()), os.environ.get("XLA_FLAGS", ""), repr(cfg), _host_digest()]
+    parts += [
+        jax.__version__,
+        jaxlib.__version__,
+        dev.platform,
+        dev.device_kind,
+        dev.client.platform_version,
+        str(jax.device_count()),
+        os.environ.get("XLA_FLAGS", ""),
+        repr(cfg),
+        _host_digest(),
+    ]
     h = hashlib.sha256(_source_digest())
     h.update("\0".join(parts).encode())
     return h.hexdigest()[:40]
@@ -358,8 +409,10 @@ def _store_executable(path, compiled):
         except BaseException:
             os.unlink(tmp)
             raise
-        entries = sorted((os.path.getmtime(p), p) for p in
-                         (os.path.join(folder, n) for n in os.listdir(folder) if n.startswith("render-")))
+        entries = sorted(
+            (os.path.getmtime(p), p)
+            for p in (os.path.join(folder, n) for n in os.listdir(folder) if n.startswith("render-"))
+        )
         for _, p in entries[:-_EXEC_KEEP]:
             os.unlink(p)
     except Exception:  # noqa: BLE001 - e.g. XLA cannot serialize this program; nothing is cached
@@ -491,43 +544,62 @@ def cost_estimate(desc) -> dict:
     shadow = shading_points * len(desc.lights)
     c = desc.primitive_counts()
     prims = c["sphere"] + c["plane"] + c["quad"] + c["box"] + c["triangles_total"]
-    return dict(pixels=r.width * r.height, camera_rays=camera, branches=branches, secondary_rays=secondary,
-                shadow_rays=shadow, primitives=prims, tests=(shading_points + shadow) * prims)
+    return dict(
+        pixels=r.width * r.height,
+        camera_rays=camera,
+        branches=branches,
+        secondary_rays=secondary,
+        shadow_rays=shadow,
+        primitives=prims,
+        tests=(shading_points + shadow) * prims,
+    )
 
 
 def _cmd_info(args) -> int:
     path, d = _load(args.scene)
     r, c = d.render, d.camera
-    out = [f"scene {d.name!r} ({d.source})",
-           f"  shading     {d.shading}",
-           f"  image       {r.width} x {r.height}, spp {r.spp}, max_depth {r.max_depth}, "
-           f"textures {'filtered' if r.filter_textures else 'point-sampled'}",
-           f"  background  {_fmt_rgb(r.background)}" + (f", ambient {_fmt_rgb(r.ambient)}" if d.shading == "classic" else ""),
-           f"  camera      position {_fmt_vec(c.position)}, look_at {_fmt_vec(c.look_at)}, up {_fmt_vec(c.up)}, "
-           f"fov {c.fov:g} deg",
-           f"lights ({len(d.lights)}):"]
+    out = [
+        f"scene {d.name!r} ({d.source})",
+        f"  shading     {d.shading}",
+        f"  image       {r.width} x {r.height}, spp {r.spp}, max_depth {r.max_depth}, "
+        f"textures {'filtered' if r.filter_textures else 'point-sampled'}",
+        f"  background  {_fmt_rgb(r.background)}"
+        + (f", ambient {_fmt_rgb(r.ambient)}" if d.shading == "classic" else ""),
+        f"  camera      position {_fmt_vec(c.position)}, look_at {_fmt_vec(c.look_at)}, up {_fmt_vec(c.up)}, "
+        f"fov {c.fov:g} deg",
+        f"lights ({len(d.lights)}):",
+    ]
     unit = "" if d.shading == "classic" else " W/sr"
     for i, light in enumerate(d.lights):
         out.append(f"  [{i}] position {_fmt_vec(light.position)}, intensity {_fmt_rgb(light.intensity)}{unit}")
     out.append(f"materials ({len(d.materials)}):")
     w = max(len(n) for n in d.materials)
     for name, m in d.materials.items():
-        out.append(f"  {name:<{w}}  color {_fmt_rgb(m.color)}: {_material_kind(m, d.shading)}{_texture_text(m.texture)}")
+        out.append(
+            f"  {name:<{w}}  color {_fmt_rgb(m.color)}: {_material_kind(m, d.shading)}{_texture_text(m.texture)}"
+        )
     out.append(f"objects ({len(d.objects)}):")
     for i, o in enumerate(d.objects):
         out.append(f"  [{i}] {_object_text(o)}")
     counts = d.primitive_counts()
-    listed = ", ".join(f"{counts[k]} {k}{'es' if k == 'box' and counts[k] != 1 else ('s' if counts[k] != 1 else '')}"
-                       for k in ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh") if counts[k])
+    listed = ", ".join(
+        f"{counts[k]} {k}{'es' if k == 'box' and counts[k] != 1 else ('s' if counts[k] != 1 else '')}"
+        for k in ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh")
+        if counts[k]
+    )
     e = cost_estimate(d)
-    out += ["estimated cost:",
-            f"  primitives  {listed or 'none'}; {e['primitives']} tested per ray "
-            f"({counts['triangles_total']} triangles)",
-            f"  rays        {_si(e['camera_rays'])} camera ({r.width} x {r.height} x {r.spp} spp)"
-            + (f" + up to {_si(e['secondary_rays'])} specular ({e['branches']} per sample and depth, "
-               f"depth {r.max_depth})" if e["secondary_rays"] else " (no specular bounces)")
-            + f" + up to {_si(e['shadow_rays'])} shadow ({len(d.lights)} light{'s' if len(d.lights) != 1 else ''})",
-            f"  work        up to {_si(e['tests'])} ray-primitive tests"]
+    out += [
+        "estimated cost:",
+        f"  primitives  {listed or 'none'}; {e['primitives']} tested per ray ({counts['triangles_total']} triangles)",
+        f"  rays        {_si(e['camera_rays'])} camera ({r.width} x {r.height} x {r.spp} spp)"
+        + (
+            f" + up to {_si(e['secondary_rays'])} specular ({e['branches']} per sample and depth, depth {r.max_depth})"
+            if e["secondary_rays"]
+            else " (no specular bounces)"
+        )
+        + f" + up to {_si(e['shadow_rays'])} shadow ({len(d.lights)} light{'s' if len(d.lights) != 1 else ''})",
+        f"  work        up to {_si(e['tests'])} ray-primitive tests",
+    ]
     print("\n".join(out))
     return 0
 
@@ -546,8 +618,9 @@ def _enable_compilation_cache():
     import jax
 
     if not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir",
-                          os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax"))
+        jax.config.update(
+            "jax_compilation_cache_dir", os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax")
+        )
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 

@@ -191,7 +191,7 @@ def _face_signs():
         for s in (-1.0, 1.0):
             face = []
             order = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
-            for su, sv in (order if s > 0 else order[::-1]):  # counter-clockwise seen from outside
+            for su, sv in order if s > 0 else order[::-1]:  # counter-clockwise seen from outside
                 c = [0.0, 0.0, 0.0]
                 c[a], c[u], c[v] = s, su, sv
                 face.append(c)
@@ -228,8 +228,9 @@ def build_prims(scene) -> tuple[Prims, dict]:
         pmat.append(scene.quads.material)
     solids = []  # (first polygon index, faces per solid, number of solids)
     if scene.tetrahedra.center.shape[0]:
-        solids.append((off["triangle"] - off["plane"] + scene.triangles.vertices.shape[0], 4,
-                       scene.tetrahedra.center.shape[0]))
+        solids.append(
+            (off["triangle"] - off["plane"] + scene.triangles.vertices.shape[0], 4, scene.tetrahedra.center.shape[0])
+        )
     T, TM = scene.merged_triangles()
     if T.shape[0]:
         v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
@@ -265,9 +266,22 @@ def build_prims(scene) -> tuple[Prims, dict]:
     mat = jnp.concatenate([m.astype(jnp.int32) for m in smat + pmat])
     ms = scene.materials
     L = scene.lights.position.T if scene.lights.position.shape[0] else jnp.zeros((3, 1), dt)
-    prims = Prims(c, r, pp.T, pn.T, jnp.transpose(eo, (1, 2, 0)), jnp.transpose(em, (1, 2, 0)), fin,
-                  jnp.asarray(solid), jnp.asarray(nface), L, mat, ms.transparency,
-                  jnp.max(ms.reflectivity, axis=1), ms.ior)
+    prims = Prims(
+        c,
+        r,
+        pp.T,
+        pn.T,
+        jnp.transpose(eo, (1, 2, 0)),
+        jnp.transpose(em, (1, 2, 0)),
+        fin,
+        jnp.asarray(solid),
+        jnp.asarray(nface),
+        L,
+        mat,
+        ms.transparency,
+        jnp.max(ms.reflectivity, axis=1),
+        ms.ior,
+    )
     return prims, dict(off, solid=solid)
 
 
@@ -545,8 +559,13 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
 
     def dead(o, d, alive):  # no chain continues: skip the searches
         none = jnp.full((L, M), -1, jnp.int32)
-        return (o, d, alive), (jnp.full((M,), -2, jnp.int32), jnp.zeros((M,), bool), none, none,
-                               jnp.zeros((M,), jnp.int32))
+        return (o, d, alive), (
+            jnp.full((M,), -2, jnp.int32),
+            jnp.zeros((M,), bool),
+            none,
+            none,
+            jnp.zeros((M,), jnp.int32),
+        )
 
     def level(carry, _):
         return jax.lax.cond(jnp.any(carry[2]), live, dead, *carry)
@@ -657,6 +676,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
     R = rec_at(xy)
     L = R.first.shape[1]
     a, b, horiz = _pairs(Gw, Gh)
+
     def okey(g):
         return object_key(P_sg, ns, g)
 
@@ -683,15 +703,24 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         lk = jnp.zeros(a.shape, jnp.int32)
         for lvl in range(D):
             eqh = ha[lvl] == hb[lvl]
-            dif = pre & eqh & (ha[lvl] >= 0) & ~found & ((R.first[lvl, k, a] != R.first[lvl, k, b])
-                                                        | (R.last[lvl, k, a] != R.last[lvl, k, b]))
+            dif = (
+                pre
+                & eqh
+                & (ha[lvl] >= 0)
+                & ~found
+                & ((R.first[lvl, k, a] != R.first[lvl, k, b]) | (R.last[lvl, k, a] != R.last[lvl, k, b]))
+            )
             lk = jnp.where(dif, lvl, lk)
             found = found | dif
             pre = pre & eqh & same_r[lvl]
         ls.append(lk)
         recv = okey(_at_level(ha, lk))
-        cands = [_at_level(R.last[:, k, a], lk), _at_level(R.first[:, k, a], lk),
-                 _at_level(R.last[:, k, b], lk), _at_level(R.first[:, k, b], lk)]
+        cands = [
+            _at_level(R.last[:, k, a], lk),
+            _at_level(R.first[:, k, a], lk),
+            _at_level(R.last[:, k, b], lk),
+            _at_level(R.first[:, k, b], lk),
+        ]
         keys = [okey(c) for c in cands]
         for j in range(4):
             new = found & (cands[j] >= 0) & (keys[j] != recv)
@@ -728,8 +757,24 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         occ = jnp.where(j_ev == 0, la, jnp.where(j_ev == 1, fa, jnp.where(j_ev == 2, lb, fb)))
     else:
         fa = la = fb = lb = occ = jnp.zeros_like(A)
-    inputs = {"live": live, "vis": vis, "level": level, "chain": chain, "refr": refr, "A": A, "B": B, "occ": occ,
-              "k": k_ev, "fa": fa, "la": la, "fb": fb, "lb": lb, "xa": xy[:, ea], "xb": xy[:, eb], "eh": horiz[pair]}
+    inputs = {
+        "live": live,
+        "vis": vis,
+        "level": level,
+        "chain": chain,
+        "refr": refr,
+        "A": A,
+        "B": B,
+        "occ": occ,
+        "k": k_ev,
+        "fa": fa,
+        "la": la,
+        "fb": fb,
+        "lb": lb,
+        "xa": xy[:, ea],
+        "xb": xy[:, eb],
+        "eh": horiz[pair],
+    }
 
     def solve(c):
         """Everything about one chunk of ``C`` events that needs no gradient."""
@@ -764,9 +809,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         ok_v = case1 | case2 | case3
         ma, mb = vals[4], vals[5]
         ok_s = (c["occ"] >= 0) & ((ma <= 0) != (mb <= 0))
-        ev = mk(jnp.where(vis, typ_v, SHADOW), jnp.where(vis, jnp.where(case2, B, A), A),
-                jnp.where(vis, B, c["occ"]),
-                jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)))
+        ev = mk(
+            jnp.where(vis, typ_v, SHADOW),
+            jnp.where(vis, jnp.where(case2, B, A), A),
+            jnp.where(vis, B, c["occ"]),
+            jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)),
+        )
         sgn = ev.sign.astype(dt)
         ok = c["live"] & jnp.where(vis, ok_v, ok_s)
         ev2 = cat(ev, ev)
@@ -843,8 +891,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
                 gv = sgn2 * gv
                 return x - V.safe_div(gv, ga2)[None] * along2, x, jnp.abs(gv) <= 0.05 * h * jnp.abs(ga2), f
 
-            _, x1, conv, f = jax.lax.fori_loop(0, NEWTON_STEPS + 1, newton,
-                                               (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32)))
+            _, x1, conv, f = jax.lax.fori_loop(
+                0, NEWTON_STEPS + 1, newton, (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32))
+            )
             return x1, conv, f
 
         def seen(x, r):
@@ -854,8 +903,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
             crossing of this edge, and the rows beside it cover its piece."""
             t = x * n - 0.5  # grid coordinates
             ca = jnp.floor(jnp.where(along2 > 0, t, jnp.round(t))).astype(jnp.int32)
-            inside = (ca[0] >= 0) & (ca[1] >= 0) & (ca[0] + along2[0].astype(jnp.int32) < Gw) \
+            inside = (
+                (ca[0] >= 0)
+                & (ca[1] >= 0)
+                & (ca[0] + along2[0].astype(jnp.int32) < Gw)
                 & (ca[1] + along2[1].astype(jnp.int32) < Gh)
+            )
             ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
             ib = jnp.clip(ia + jnp.where(along2[0] > 0, 1, Gw), 0, S - 1)
             at = jax.tree_util.tree_map(lambda v: v[..., jnp.concatenate([ia, ib])], R)
@@ -867,9 +920,11 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
                 same = same & ((q > lv4) | (at.hit[q] == r.hit[q])) & ((q >= lv4) | (at.refr[q] == r.refr[q]))
             if L:
                 k4, ar = jnp.tile(c["k"], 4), jnp.arange(4 * E)
-                same = same & (jnp.tile(vis, 4) | ((at.first[lv4, k4, ar] == r.first[lv4, k4, ar])
-                                                   & (at.last[lv4, k4, ar] == r.last[lv4, k4, ar])))
-            return ~inside | (same[:2 * E] & same[2 * E:])
+                same = same & (
+                    jnp.tile(vis, 4)
+                    | ((at.first[lv4, k4, ar] == r.first[lv4, k4, ar]) & (at.last[lv4, k4, ar] == r.last[lv4, k4, ar]))
+                )
+            return ~inside | (same[: 2 * E] & same[2 * E :])
 
         def end_step(i, st):
             lo, hi, full, lost, ref, feat = st
@@ -878,8 +933,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
             r = rec_at(jnp.concatenate([x - u2, x + u2], 1))  # minus side, plus side (each 2E)
             ref = jax.tree_util.tree_map(lambda new, old: jnp.where(i == 0, new, old), r, ref)
             feat = jnp.where(i == 0, f, feat)
-            v = conv & (f == feat) & _rec_equal(_rec_slice(r, slice(0, 2 * E)), _rec_slice(ref, slice(0, 2 * E))) \
+            v = (
+                conv
+                & (f == feat)
+                & _rec_equal(_rec_slice(r, slice(0, 2 * E)), _rec_slice(ref, slice(0, 2 * E)))
                 & _rec_equal(_rec_slice(r, slice(2 * E, 4 * E)), _rec_slice(ref, slice(2 * E, 4 * E)))
+            )
             nb = seen(x, r)
             full = jnp.where(i == 1, v & nb, full)
             lost = jnp.where(i == 1, v & ~nb, lost)
@@ -887,13 +946,17 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
             hi = jnp.where((i > 1) & ~v, mid, hi)
             return lo, hi, full, lost, ref, feat
 
-        ref0 = Records(jnp.zeros((D, 4 * E), jnp.int32), jnp.zeros((D, 4 * E), bool),
-                       jnp.zeros((D, L, 4 * E), jnp.int32), jnp.zeros((D, L, 4 * E), jnp.int32),
-                       jnp.zeros((D, 4 * E), jnp.int32))
+        ref0 = Records(
+            jnp.zeros((D, 4 * E), jnp.int32),
+            jnp.zeros((D, 4 * E), bool),
+            jnp.zeros((D, L, 4 * E), jnp.int32),
+            jnp.zeros((D, L, 4 * E), jnp.int32),
+            jnp.zeros((D, 4 * E), jnp.int32),
+        )
         no = jnp.zeros(sided.shape, bool)
         lo, hi, full, lost, ref, _ = jax.lax.fori_loop(
-            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, no, no, ref0,
-                                         jnp.zeros(sided.shape, jnp.int32)))
+            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, no, no, ref0, jnp.zeros(sided.shape, jnp.int32))
+        )
         r_m, r_p = _rec_slice(ref, slice(0, E)), _rec_slice(ref, slice(2 * E, 3 * E))
         lvl = c["level"]
         pre_m = pre_p = jnp.ones_like(ok)
@@ -905,8 +968,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         jump_ok = pre_m & pre_p & (hm == A) & jnp.where(vis, hp == B, hp == A)
         if L:
             ar = jnp.arange(E)
-            sh = ((r_m.first[lvl, c["k"], ar] == c["fa"]) & (r_m.last[lvl, c["k"], ar] == c["la"])
-                  & (r_p.first[lvl, c["k"], ar] == c["fb"]) & (r_p.last[lvl, c["k"], ar] == c["lb"]))
+            sh = (
+                (r_m.first[lvl, c["k"], ar] == c["fa"])
+                & (r_m.last[lvl, c["k"], ar] == c["la"])
+                & (r_p.first[lvl, c["k"], ar] == c["fb"])
+                & (r_p.last[lvl, c["k"], ar] == c["lb"])
+            )
             jump_ok = jump_ok & (vis | sh)
         # A shadow edge's jump is that of its light's contribution alone; one compiled
         # trace, mapped over the lights and then everything (index L).
@@ -916,14 +983,15 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         pts = jnp.concatenate([probes, inner], 1) if ns else probes
         sel = jnp.concatenate([which, which] + ([jnp.full((2 * E,), L, jnp.int32)] if ns else []))
         fl = radiance_at(pts, sel)
-        fr = fl[:2 * E]
+        fr = fl[: 2 * E]
         # f = f_s + A sqrt(q) + B q at the inside distances q = 1/256 (the probe), 1/16
         # and 1/4 of the spacing: A by elimination of f_s and B.
         q0, q1, q2 = 1.0 / 256.0, 1.0 / 16.0, 1.0 / 4.0
         f0 = jnp.where(in_b[:, None], fr[E:], fr[:E])
-        f1, f2 = (fl[2 * E:3 * E], fl[3 * E:]) if ns else (f0, f0)
+        f1, f2 = (fl[2 * E : 3 * E], fl[3 * E :]) if ns else (f0, f0)
         A = ((f1 - f0) * (q2 - q0) - (f2 - f0) * (q1 - q0)) / (
-            (math.sqrt(q1) - math.sqrt(q0)) * (q2 - q0) - (math.sqrt(q2) - math.sqrt(q0)) * (q1 - q0))
+            (math.sqrt(q1) - math.sqrt(q0)) * (q2 - q0) - (math.sqrt(q2) - math.sqrt(q0)) * (q1 - q0)
+        )
         A = jnp.where(sil[:, None] & jnp.isfinite(A), A, 0.0)
         fin = f0 - A * math.sqrt(q0)  # the inside probe extrapolated to the edge
         fm = jnp.where(in_b[:, None], fr[:E], fin)
@@ -942,8 +1010,17 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
         coef = -df * (jnp.sign(ga) * wgt * (e_m + e_p))[:, None]
         coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
-        out = {"typ": ev.typ, "p1": ev.p1, "p2": ev.p2, "sign": ev.sign, "xs": xs, "coef": coef.T, "pix": pix,
-               "wts": wts, "ok": ok}
+        out = {
+            "typ": ev.typ,
+            "p1": ev.p1,
+            "p2": ev.p2,
+            "sign": ev.sign,
+            "xs": xs,
+            "coef": coef.T,
+            "pix": pix,
+            "wts": wts,
+            "ok": ok,
+        }
         if ns:
             # A sphere's silhouette: the first QUAD_SAMPLES inside samples of the row (at
             # t = k + phi spacings from the edge) are replaced by the integral of the
@@ -960,8 +1037,13 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
             tk = jnp.arange(QUAD_SAMPLES, dtype=dt)[:, None] + phi[None]
             ww = jnp.concatenate([wq, -jnp.ones_like(tk)])
             x0 = jnp.where(in_b[None], xb, xa)  # the first inside sample, exactly on the grid
-            qx = jnp.concatenate([xs[:, None, :] + tq[None] * step_in[:, None, :],
-                                  x0[:, None, :] + (tk - phi[None])[None] * step_in[:, None, :]], 1)  # (2, Q+K, E)
+            qx = jnp.concatenate(
+                [
+                    xs[:, None, :] + tq[None] * step_in[:, None, :],
+                    x0[:, None, :] + (tk - phi[None])[None] * step_in[:, None, :],
+                ],
+                1,
+            )  # (2, Q+K, E)
             scale = (V.safe_div(a4, a4 + c4) * (e_m + e_p) * h)[None]
             qw = jnp.where((ok & sil & jump_ok)[None] & jnp.isfinite(scale), ww * scale, 0.0)
             out["qx"], out["qw"], out["pin"] = qx, qw, _pixel_of(x0, width, height)
@@ -972,8 +1054,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
 
     def solve_or_skip(c):
         shapes = jax.eval_shape(solve, c)
-        return jax.lax.cond(jnp.any(c["live"]), solve,
-                            lambda _: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), c)
+        return jax.lax.cond(
+            jnp.any(c["live"]),
+            solve,
+            lambda _: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
+            c,
+        )
 
     res = jax.lax.map(solve_or_skip, {k: chunked(jax.lax.stop_gradient(v)) for k, v in inputs.items()})
     res = {k: jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (K,)) for k, v in res.items()}
@@ -1006,7 +1092,11 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
             return jax.lax.cond(jnp.any(w != 0), jax.checkpoint(run), lambda _: jnp.zeros((C, 3), dt), None)
 
         img = img.at[res["pin"][order]].add(jax.lax.map(quad, (qx, qw)).reshape(K, 3))
-    img = eqx.error_if(img, count > budget, f"edge_gradients: more sample pairs straddle an edge than "
-                                            f"edge_budget={budget}; pass a larger edge_budget to render")
+    img = eqx.error_if(
+        img,
+        count > budget,
+        f"edge_gradients: more sample pairs straddle an edge than "
+        f"edge_budget={budget}; pass a larger edge_budget to render",
+    )
     img = img - jax.lax.stop_gradient(img)
     return img.reshape(height, width, 3), count

@@ -68,8 +68,19 @@ DEFAULT_BOUNDS = {
     "fov": (0.0, 180.0),
 }
 
-_RENDER_KEYS = ("width", "height", "spp", "max_depth", "filter_textures", "branches", "tile_rays", "devices",
-                "key", "edge_gradients", "edge_budget")
+_RENDER_KEYS = (
+    "width",
+    "height",
+    "spp",
+    "max_depth",
+    "filter_textures",
+    "branches",
+    "tile_rays",
+    "devices",
+    "key",
+    "edge_gradients",
+    "edge_budget",
+)
 _TAGS = frozenset()
 _JACFWD_MAX = 32  # fitted numbers up to which the start check resolves single components
 
@@ -112,8 +123,10 @@ class FitResult:
 
     def __str__(self):
         vals = "\n".join(f"  {n} = {_fmt(v)}" for n, v in self.params.items())
-        return (f"FitResult({self.message}; {self.steps} steps, loss {self.loss_history[0]:.4g} -> "
-                f"{self.loss:.4g}, {self.seconds:.1f} s)\n{vals}")
+        return (
+            f"FitResult({self.message}; {self.steps} steps, loss {self.loss_history[0]:.4g} -> "
+            f"{self.loss:.4g}, {self.seconds:.1f} s)\n{vals}"
+        )
 
 
 class _Frozen:
@@ -244,8 +257,7 @@ def _effect(problem: _Problem, z, probe):
     size = sum(int(np.prod(v.shape)) for v in z.values())
     if size <= _JACFWD_MAX:
         J = jax.jacfwd(problem.image)(z)
-        return {n: jnp.sum(jnp.abs(j) * w.reshape(w.shape + (1,) * (j.ndim - 3)), axis=(0, 1, 2))
-                for n, j in J.items()}
+        return {n: jnp.sum(jnp.abs(j) * w.reshape(w.shape + (1,) * (j.ndim - 3)), axis=(0, 1, 2)) for n, j in J.items()}
     names = list(z)
 
     def along(i):
@@ -283,14 +295,24 @@ def _step(problem, solver, z, dyn_state, least_squares):
     done, result = solver.terminate(fn, z, None, {}, state, _TAGS)
     f_info = getattr(state, "f_info", None)
     if f_info is not None and hasattr(f_info, "residual") and least_squares:
-        obj = jnp.sum(f_info.residual ** 2)
+        obj = jnp.sum(f_info.residual**2)
     elif f_info is not None and hasattr(f_info, "f") and not least_squares:
         obj = f_info.f
     else:
         obj = fn(z_new, None)[0]
-        obj = jnp.sum(obj ** 2) if least_squares else obj
-    finite = jnp.isfinite(obj) & jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(z_new)]))
-    return z_new, eqx.filter(state, eqx.is_array), done, result, obj / problem.scale, finite, problem.scene_values(z_new)
+        obj = jnp.sum(obj**2) if least_squares else obj
+    finite = jnp.isfinite(obj) & jnp.all(
+        jnp.stack([jnp.all(jnp.isfinite(v)) for v in jax.tree_util.tree_leaves(z_new)])
+    )
+    return (
+        z_new,
+        eqx.filter(state, eqx.is_array),
+        done,
+        result,
+        obj / problem.scale,
+        finite,
+        problem.scene_values(z_new),
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -302,11 +324,17 @@ def _make_solver(solver, rtol, atol, learning_rate):
     if isinstance(solver, optx.AbstractMinimiser):
         return solver, False
     if not isinstance(solver, str):
-        raise TypeError(f"solver: expected one of {SOLVERS} or an optimistix least-squares solver or "
-                        f"minimiser, got {solver!r}")
+        raise TypeError(
+            f"solver: expected one of {SOLVERS} or an optimistix least-squares solver or minimiser, got {solver!r}"
+        )
     key = solver.lower().replace("-", "_").replace(" ", "_")
-    aliases = {"lm": "levenberg_marquardt", "gn": "gauss_newton", "gd": "gradient_descent",
-               "levenbergmarquardt": "levenberg_marquardt", "gaussnewton": "gauss_newton"}
+    aliases = {
+        "lm": "levenberg_marquardt",
+        "gn": "gauss_newton",
+        "gd": "gradient_descent",
+        "levenbergmarquardt": "levenberg_marquardt",
+        "gaussnewton": "gauss_newton",
+    }
     key = aliases.get(key, key)
     if key == "levenberg_marquardt":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol), True
@@ -325,8 +353,9 @@ def _make_solver(solver, rtol, atol, learning_rate):
         return optx.GradientDescent(learning_rate=lr, rtol=rtol, atol=atol), False
     near = difflib.get_close_matches(key, SOLVERS, n=1)
     hint = f" (did you mean {near[0]!r}?)" if near else ""
-    raise ValueError(f"solver: unknown solver {solver!r}{hint}; expected one of {SOLVERS} "
-                     f"or an optimistix solver instance")
+    raise ValueError(
+        f"solver: unknown solver {solver!r}{hint}; expected one of {SOLVERS} or an optimistix solver instance"
+    )
 
 
 def _resolve_params(scene, params):
@@ -343,8 +372,10 @@ def _resolve_params(scene, params):
     if not params:
         raise ValueError("params: nothing to fit (empty list)")
     if not all(isinstance(p, str) for p in params):
-        raise TypeError(f"params: expected parameter names (str), a dict of name -> start value, or a "
-                        f"selector function (lambda s: s.lights.position), got {params!r}")
+        raise TypeError(
+            f"params: expected parameter names (str), a dict of name -> start value, or a "
+            f"selector function (lambda s: s.lights.position), got {params!r}"
+        )
     if len(set(params)) != len(params):
         raise ValueError(f"params: a name is given twice in {params}")
     from .params import parameters
@@ -354,8 +385,10 @@ def _resolve_params(scene, params):
         if p not in available:
             near = difflib.get_close_matches(p, list(available), n=3)
             hint = f"; did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
-            raise ValueError(f"params: unknown parameter {p!r}{hint} (raytrax.parameters(scene) lists the "
-                           f"{len(available)} names this scene has)")
+            raise ValueError(
+                f"params: unknown parameter {p!r}{hint} (raytrax.parameters(scene) lists the "
+                f"{len(available)} names this scene has)"
+            )
     starts = {}
     for p in params:
         cur = jnp.asarray(available[p])
@@ -379,9 +412,11 @@ def _resolve_selector(scene, selector):
     names, starts = [], {}
     for it in items:
         if id(it) not in by_id:
-            raise ValueError("params: a selector must return whole array leaves of the scene "
-                             "(e.g. lambda s: s.lights.position or (s.lights.position, s.materials.ior)); "
-                             "to fit one row use names such as 'light[0].position'")
+            raise ValueError(
+                "params: a selector must return whole array leaves of the scene "
+                "(e.g. lambda s: s.lights.position or (s.lights.position, s.materials.ior)); "
+                "to fit one row use names such as 'light[0].position'"
+            )
         name = by_id[id(it)]
         if not jnp.issubdtype(it.dtype, jnp.floating):
             raise ValueError(f"params: {name} is an integer leaf ({it.dtype}); only float leaves can be fitted")
@@ -415,13 +450,16 @@ def _resolve_bounds(names, starts, bounds, default_bounds):
         fl, fh = np.isfinite(l), np.isfinite(h)
         if not (fl.all() or (~fl).all()) or not (fh.all() or (~fh).all()):
             raise ValueError(f"bounds[{n!r}]: give every component a bound or none (got {b!r})")
-        kind = {(False, False): "none", (True, False): "lower", (False, True): "upper",
-                (True, True): "both"}[(bool(fl.all()), bool(fh.all()))]
+        kind = {(False, False): "none", (True, False): "lower", (False, True): "upper", (True, True): "both"}[
+            (bool(fl.all()), bool(fh.all()))
+        ]
         x0 = np.asarray(starts[n], np.float64)
         if np.any(x0 < l) or np.any(x0 > h):
-            raise ValueError(f"params: the start value of {n} = {_fmt(x0)} is outside its bounds "
-                             f"[{_fmt(l)}, {_fmt(h)}]; pass a start inside them (params={{name: value}}) or "
-                             f"other bounds (bounds={{{n!r}: (lo, hi)}} or None)")
+            raise ValueError(
+                f"params: the start value of {n} = {_fmt(x0)} is outside its bounds "
+                f"[{_fmt(l)}, {_fmt(h)}]; pass a start inside them (params={{name: value}}) or "
+                f"other bounds (bounds={{{n!r}: (lo, hi)}} or None)"
+            )
         maps.append(kind)
         lo[n] = jnp.asarray(np.where(fl, l, 0.0), dt)
         hi[n] = jnp.asarray(np.where(fh, h, 0.0), dt)
@@ -469,10 +507,13 @@ def _target_and_weights(target, weights, shape, dtype):
     if t.shape != shape:
         hint = ""
         if t.ndim == 3 and t.shape[2] == 3:
-            hint = (f"; render the target at the scene's size or pass "
-                    f"render_kwargs=dict(width={t.shape[1]}, height={t.shape[0]})")
-        raise ValueError(f"target: shape {t.shape} does not match the rendered image's shape {shape} "
-                         f"(height, width, 3){hint}")
+            hint = (
+                f"; render the target at the scene's size or pass "
+                f"render_kwargs=dict(width={t.shape[1]}, height={t.shape[0]})"
+            )
+        raise ValueError(
+            f"target: shape {t.shape} does not match the rendered image's shape {shape} (height, width, 3){hint}"
+        )
     if not np.all(np.isfinite(t)):
         raise ValueError(f"target: contains {int(np.sum(~np.isfinite(t)))} non-finite values (nan or inf)")
     if weights is None:
@@ -485,8 +526,10 @@ def _target_and_weights(target, weights, shape, dtype):
         try:
             w = np.broadcast_to(w, shape)
         except ValueError:
-            raise ValueError(f"weights: shape {np.shape(weights)} does not fit the image's shape {shape}; "
-                             f"expected (H, W), (H, W, 1) or (H, W, 3)") from None
+            raise ValueError(
+                f"weights: shape {np.shape(weights)} does not fit the image's shape {shape}; "
+                f"expected (H, W), (H, W, 1) or (H, W, 3)"
+            ) from None
         if not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ValueError("weights: expected finite, non-negative weights")
         if not np.any(w > 0):
@@ -619,9 +662,11 @@ def fit(
         loss_fn = None
     elif callable(loss):
         if least_squares:
-            raise ValueError("loss: a custom loss function needs a minimiser (solver='bfgs', "
-                             "'gradient_descent' or 'nonlinear_cg'); least squares fit the residual image "
-                             "(loss='mse' with weights)")
+            raise ValueError(
+                "loss: a custom loss function needs a minimiser (solver='bfgs', "
+                "'gradient_descent' or 'nonlinear_cg'); least squares fit the residual image "
+                "(loss='mse' with weights)"
+            )
         loss_fn = loss
     else:
         raise ValueError(f"loss: expected 'mse' or a function loss(image, target) -> scalar, got {loss!r}")
@@ -629,8 +674,10 @@ def fit(
         if not callable(regularizer):
             raise TypeError(f"regularizer: expected a function values -> scalar, got {regularizer!r}")
         if least_squares:
-            raise ValueError("regularizer: a regularised loss needs a minimiser (solver='bfgs', 'lbfgs', "
-                             "'gradient_descent' or 'nonlinear_cg')")
+            raise ValueError(
+                "regularizer: a regularised loss needs a minimiser (solver='bfgs', 'lbfgs', "
+                "'gradient_descent' or 'nonlinear_cg')"
+            )
 
     names, starts, by_path = _resolve_params(scene, params)
     lo, hi, maps = _resolve_bounds(names, starts, bounds, default_bounds)
@@ -644,10 +691,23 @@ def fit(
     hi = {n: v.astype(sdt) for n, v in hi.items()}
 
     floats, ints = eqx.partition(scene, _is_float_array)
-    problem = _Problem(floats=floats, ints=_Frozen(ints), target=target_a, weights=weights_a, scale=jnp.asarray(1.0, sdt),
-                       lo=lo, hi=hi, key=key, names=names, dtypes=tuple(str(starts[n].dtype) for n in names),
-                       maps=maps, by_path=by_path,
-                       render_opts=render_opts, loss_fn=loss_fn, reg_fn=regularizer)
+    problem = _Problem(
+        floats=floats,
+        ints=_Frozen(ints),
+        target=target_a,
+        weights=weights_a,
+        scale=jnp.asarray(1.0, sdt),
+        lo=lo,
+        hi=hi,
+        key=key,
+        names=names,
+        dtypes=tuple(str(starts[n].dtype) for n in names),
+        maps=maps,
+        by_path=by_path,
+        render_opts=render_opts,
+        loss_fn=loss_fn,
+        reg_fn=regularizer,
+    )
 
     # -- start: loss, finiteness, effect of each parameter ----------------
     rng = np.random.default_rng(0)
@@ -657,8 +717,9 @@ def fit(
     img0 = problem.image(z0)
     loss0 = float(problem.total_loss(img0, z0))
     if not bool(jnp.all(jnp.isfinite(img0))):
-        raise FloatingPointError("the render at the start contains non-finite values (nan or inf); "
-                                 "check the start parameters")
+        raise FloatingPointError(
+            "the render at the start contains non-finite values (nan or inf); check the start parameters"
+        )
     if not math.isfinite(loss0):
         raise FloatingPointError(f"the loss at the start is not finite ({loss0})")
     if check:
@@ -677,10 +738,15 @@ def fit(
                 f"(their derivative is zero at every{' weighted' if weights is not None else ''} pixel), "
                 "so they cannot be fitted: e.g. a light that lights nothing the camera sees, a material "
                 "no visible object uses, or an effect only through hard edges (silhouettes, shadow "
-                "boundaries carry no gradient). Move the start, or leave them out of params.")
+                "boundaries carry no gradient). Move the start, or leave them out of params."
+            )
         if part:
-            warnings.warn(f"fit: component(s) {', '.join(part)} have no effect on the image at the start "
-                          "(zero derivative); they will stay where they are", RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"fit: component(s) {', '.join(part)} have no effect on the image at the start "
+                "(zero derivative); they will stay where they are",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     v0 = problem.scene_values(z0)
     start_values = {n: np.asarray(v0[n]) for n in names}
     reporter = _Reporter(progress, max_steps, names)
@@ -693,10 +759,19 @@ def fit(
     if loss0 == 0.0:
         msg = "the start already reproduces the target exactly (loss 0)"
         reporter.close(msg)
-        return FitResult(scene=problem.scene_at(z0), params=start_values, initial_params=start_values,
-                         loss_history=np.asarray(history), param_history=p_history, steps=0,
-                         converged=True, result=optx.RESULTS.successful, message=msg, solver=opt,
-                         seconds=time.perf_counter() - t_start)
+        return FitResult(
+            scene=problem.scene_at(z0),
+            params=start_values,
+            initial_params=start_values,
+            loss_history=np.asarray(history),
+            param_history=p_history,
+            steps=0,
+            converged=True,
+            result=optx.RESULTS.successful,
+            message=msg,
+            solver=opt,
+            seconds=time.perf_counter() - t_start,
+        )
     # Least squares: residuals of RMS 1 at the start; minimisers: loss 1 at the start.
     n_eff = float(np.count_nonzero(np.asarray(weights_a))) if least_squares else 1.0
     problem = eqx.tree_at(lambda p: p.scale, problem, jnp.asarray(n_eff / loss0, sdt))
@@ -735,9 +810,12 @@ def fit(
         interrupted = True
 
     if nonfinite:
-        msg = (f"the loss or the parameters became non-finite (nan or inf) at step {steps}; last finite "
-               f"values: " + ", ".join(f"{n}={_fmt(v)}" for n, v in p_history[-1].items()) +
-               ". Try bounds, a closer start or another solver")
+        msg = (
+            f"the loss or the parameters became non-finite (nan or inf) at step {steps}; last finite "
+            f"values: "
+            + ", ".join(f"{n}={_fmt(v)}" for n, v in p_history[-1].items())
+            + ". Try bounds, a closer start or another solver"
+        )
         if throw:
             reporter.close("stopped: non-finite values")
             raise FloatingPointError(msg)
@@ -745,8 +823,7 @@ def fit(
     elif interrupted:
         msg = f"interrupted after {steps - 1} steps; returning the best point so far"
     elif stalled:
-        msg = (f"converged in {steps} steps (stalled: the loss improved by less than 0.1% in the last "
-               f"{patience} steps)")
+        msg = f"converged in {steps} steps (stalled: the loss improved by less than 0.1% in the last {patience} steps)"
     elif converged:
         msg = f"converged in {steps} steps"
     elif result != optx.RESULTS.successful:
@@ -757,8 +834,12 @@ def fit(
     _, z_best, vals_best = best
     reporter.close(f"{msg}; loss {loss0:.4g} -> {best[0]:.4g}")
     if not converged and not interrupted:
-        warnings.warn(f"fit: {msg} (loss {loss0:.4g} -> {best[0]:.4g}); the result may be inaccurate: "
-                      "raise max_steps, loosen rtol/atol, or check the problem", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"fit: {msg} (loss {loss0:.4g} -> {best[0]:.4g}); the result may be inaccurate: "
+            "raise max_steps, loosen rtol/atol, or check the problem",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return FitResult(
         scene=problem.scene_at(z_best),
         params=vals_best,

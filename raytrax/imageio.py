@@ -26,8 +26,17 @@ import numpy as np
 
 from ._atomic import atomic_path
 
-__all__ = ["ImageError", "save_image", "load_image", "load_image_metadata", "linear_to_srgb",
-           "srgb_to_linear", "to_display", "show", "WRITE_FORMATS"]
+__all__ = [
+    "ImageError",
+    "save_image",
+    "load_image",
+    "load_image_metadata",
+    "linear_to_srgb",
+    "srgb_to_linear",
+    "to_display",
+    "show",
+    "WRITE_FORMATS",
+]
 
 #: extension -> (allowed bits, default bits, description)
 WRITE_FORMATS = {
@@ -107,8 +116,10 @@ def save_image(path, img, *, metadata: Optional[Mapping] = None, bits: Optional[
     path = os.fspath(path)
     ext = _ext(path)
     if ext not in WRITE_FORMATS:
-        raise ImageError(f"{path}: cannot write images of type {ext or '(no extension)'!r}; "
-                         f"expected one of {', '.join(WRITE_FORMATS)}")
+        raise ImageError(
+            f"{path}: cannot write images of type {ext or '(no extension)'!r}; "
+            f"expected one of {', '.join(WRITE_FORMATS)}"
+        )
     allowed, default, _ = WRITE_FORMATS[ext]
     if bits is None:
         bits = default
@@ -201,7 +212,7 @@ def load_image_metadata(path) -> dict:
         out = {}
         for p in spec.extra_attribs:
             if p.name.startswith("raytrax:"):
-                out[p.name[len("raytrax:"):]] = p.value
+                out[p.name[len("raytrax:") :]] = p.value
         return out
     finally:
         inp.close()

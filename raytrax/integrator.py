@@ -81,7 +81,7 @@ def _material_rows(mats, mat, names):
             out[nm] = rows[j]
             j += 1
         else:
-            out[nm] = rows[j:j + c.shape[1]]
+            out[nm] = rows[j : j + c.shape[1]]
             j += c.shape[1]
     return out
 
@@ -95,8 +95,7 @@ def _pattern_fraction(mats, k, rows, uv, wuv, filtered):
     if tx.CHECKER in kinds:
         frac = jnp.where(k == tx.CHECKER, tx.checker(uv, wuv, rows["tex_scale"], filtered), frac)
     if tx.STRIPES in kinds:
-        frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, rows["tex_scale"], rows["tex_direction"], filtered),
-                         frac)
+        frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, rows["tex_scale"], rows["tex_direction"], filtered), frac)
     return frac
 
 
@@ -177,6 +176,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
 
     def carries(l):  # (n,) rays that carry light l (l = L: ambient and background), or None: all
         return None if sel is None else (sel == l) | (sel >= L)
+
     if L:
         # One light at a time on (n,) / (3, n) arrays: no (3, L, n) broadcasts and no
         # reductions over short axes (XLA:CPU runs those, and their transposes, slowly).
@@ -220,8 +220,9 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
                 trans = jnp.ones_like(t)
                 for m in range(M):  # shadow transmission: each crossing multiplies by the occluder's transparency
                     has = sh[:, m] > 0
-                    trans = trans * jnp.where(has, jnp.where(has, mats.transparency[m], 1.0)
-                                              ** jnp.where(has, sh[:, m], 1.0), 1.0)
+                    trans = trans * jnp.where(
+                        has, jnp.where(has, mats.transparency[m], 1.0) ** jnp.where(has, sh[:, m], 1.0), 1.0
+                    )
                 diff = diffuse * jnp.maximum(cosl[l], 0.0)
                 rv = V.dot(V.reflect(-ldir[l], n_s), -d)
                 spec = jnp.where(lit[l], specular * V.safe_pow(rv, shininess), 0.0)
@@ -359,7 +360,7 @@ def _top_branches(kids, B, n):
     def g(a):  # a (k, 2B, n) -> (k, B n): a select chain (elementwise, also in reverse mode)
         out = jnp.broadcast_to(a[:, :1], (a.shape[0], B, n))
         for j in range(1, 2 * B):
-            out = jnp.where(top[None] == j, a[:, j:j + 1], out)
+            out = jnp.where(top[None] == j, a[:, j : j + 1], out)
         return out.reshape(a.shape[0], -1)
 
     return g(co), g(cd), g(cwt), g(ccw[None])[0]
@@ -426,10 +427,16 @@ def _render(scene: Scene, opts: RenderOptions, key):
     if n_dev > 1:
         from jax.sharding import PartitionSpec as Spec
 
-        mesh = jax.make_mesh((n_dev,), ("tiles",), devices=jax.devices()[:n_dev],
-                             axis_types=(jax.sharding.AxisType.Auto,))
-        run = jax.shard_map(run, mesh=mesh, in_specs=(Spec(), Spec("tiles"), Spec("tiles"), Spec()),
-                            out_specs=Spec("tiles"), check_vma=False)
+        mesh = jax.make_mesh(
+            (n_dev,), ("tiles",), devices=jax.devices()[:n_dev], axis_types=(jax.sharding.AxisType.Auto,)
+        )
+        run = jax.shard_map(
+            run,
+            mesh=mesh,
+            in_specs=(Spec(), Spec("tiles"), Spec("tiles"), Spec()),
+            out_specs=Spec("tiles"),
+            check_vma=False,
+        )
     out = run(scene, pix, ids, key)
     return out.reshape(n_tiles * tile, 3)[:P].reshape(H, W, 3)
 
@@ -485,8 +492,7 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
     st = opts.settings
     n = eo.samples
     W, H = st.width, st.height
-    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=W * n, height=H * n, spp=1),
-                               jitter=False)
+    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=W * n, height=H * n, spp=1), jitter=False)
     samples = _render(scene, grid, None)  # (H n, W n, 3), differentiable
     img = samples.reshape(H, n, W, n, 3).mean((1, 3))
     # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
@@ -495,19 +501,35 @@ def _render_edges(scene: Scene, opts: RenderOptions, eo):
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
     # The quadrature's rays are shaded as the grid's samples are: ``opts`` (edge mode
     # has no jitter: ``render`` refuses a key with it).
-    edge, _ = edge_term(scene, W, H, eo, lambda xy, light=None: _radiance_at(scene, hard, xy, n, light),
-                        lambda xy: _radiance_at(scene, opts, xy, n, grad=True))
+    edge, _ = edge_term(
+        scene,
+        W,
+        H,
+        eo,
+        lambda xy, light=None: _radiance_at(scene, hard, xy, n, light),
+        lambda xy: _radiance_at(scene, opts, xy, n, grad=True),
+    )
     return img + edge
 
 
 _render_edges_jit = eqx.filter_jit(_render_edges)
 
 
-def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] = None,
-           spp: Optional[int] = None, max_depth: Optional[int] = None, key=None,
-           filter_textures: Optional[bool] = None, branches: Optional[int] = None,
-           tile_rays: int = RAYS_PER_TILE, devices=None, edge_gradients: bool = False,
-           edge_budget: Optional[int] = None) -> jax.Array:
+def render(
+    scene: Scene,
+    *,
+    width: Optional[int] = None,
+    height: Optional[int] = None,
+    spp: Optional[int] = None,
+    max_depth: Optional[int] = None,
+    key=None,
+    filter_textures: Optional[bool] = None,
+    branches: Optional[int] = None,
+    tile_rays: int = RAYS_PER_TILE,
+    devices=None,
+    edge_gradients: bool = False,
+    edge_budget: Optional[int] = None,
+) -> jax.Array:
     """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
 
     Keywords override the scene's own render settings (same names as the scene
@@ -533,8 +555,13 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``.
     """
-    over = {k: v for k, v in dict(width=width, height=height, spp=spp, max_depth=max_depth,
-                                   filter_textures=filter_textures, branches=branches).items() if v is not None}
+    over = {
+        k: v
+        for k, v in dict(
+            width=width, height=height, spp=spp, max_depth=max_depth, filter_textures=filter_textures, branches=branches
+        ).items()
+        if v is not None
+    }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
     if devices is None:
         n_dev = 1
@@ -549,8 +576,9 @@ def render(scene: Scene, *, width: Optional[int] = None, height: Optional[int] =
         from .edges import EdgeOptions
 
         if key is not None:
-            raise ValueError("edge_gradients: edges are found on the regular n x n sample grid; "
-                             "pass key=None (no jitter)")
+            raise ValueError(
+                "edge_gradients: edges are found on the regular n x n sample grid; pass key=None (no jitter)"
+            )
         if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
         return _render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1))

@@ -56,15 +56,30 @@ def prepare(scene) -> list[Kind]:
     kinds = []
     sp = scene.spheres
     if sp.center.shape[0]:
-        kinds.append(Kind("sphere", _ng(S.sphere_soa(sp)), sp.material, S.sphere_t,
-                          lambda i, o, d, t0: S.sphere_hit(sp.center[i].T, sp.radius[i], o, d, t0),
-                          S.sphere_crossings))
+        kinds.append(
+            Kind(
+                "sphere",
+                _ng(S.sphere_soa(sp)),
+                sp.material,
+                S.sphere_t,
+                lambda i, o, d, t0: S.sphere_hit(sp.center[i].T, sp.radius[i], o, d, t0),
+                S.sphere_crossings,
+            )
+        )
     pl = scene.planes
     if pl.point.shape[0]:
-        kinds.append(Kind("plane", _ng(S.plane_soa(pl)), pl.material, S.plane_t,
-                          lambda i, o, d, t0: S.plane_hit(pl.point[i].T, pl.normal[i].T, o, d, t0)))
+        kinds.append(
+            Kind(
+                "plane",
+                _ng(S.plane_soa(pl)),
+                pl.material,
+                S.plane_t,
+                lambda i, o, d, t0: S.plane_hit(pl.point[i].T, pl.normal[i].T, o, d, t0),
+            )
+        )
     qd = scene.quads
     if qd.corners.shape[0]:
+
         def qhit(i, o, d, t0):
             c = qd.corners[i]
             return S.quad_hit(c[:, 0].T, c[:, 1].T, c[:, 2].T, c[:, 3].T, o, d, t0)
@@ -165,8 +180,14 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
     n = o.shape[1]
     if not kinds:
         z = jnp.zeros((n,), o.dtype)
-        return Hit(jnp.zeros((n,), bool), z, jnp.zeros_like(o), jnp.zeros((2, n), o.dtype),
-                   jnp.zeros((2, n), o.dtype), jnp.zeros((n,), jnp.int32))
+        return Hit(
+            jnp.zeros((n,), bool),
+            z,
+            jnp.zeros_like(o),
+            jnp.zeros((2, n), o.dtype),
+            jnp.zeros((2, n), o.dtype),
+            jnp.zeros((n,), jnp.int32),
+        )
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     ts, ids = zip(*[_closest_kind(k, ray, 0.0) for k in kinds])
     ts = jnp.stack(ts)
@@ -198,8 +219,14 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
 
     def no_ray(which, t0, ids, o, d):
         z = jnp.zeros((n,), o.dtype)
-        return Hit(jnp.zeros((n,), bool), z, jnp.zeros_like(o), jnp.zeros((2, n), o.dtype),
-                   jnp.zeros((2, n), o.dtype), jnp.zeros((n,), jnp.int32))
+        return Hit(
+            jnp.zeros((n,), bool),
+            z,
+            jnp.zeros_like(o),
+            jnp.zeros((2, n), o.dtype),
+            jnp.zeros((2, n), o.dtype),
+            jnp.zeros((n,), jnp.int32),
+        )
 
     # Also under a cond, so that every field of the hit (validity included) is read
     # from materialised search results rather than re-searched inside its consumers.

@@ -60,7 +60,17 @@ class Materials(eqx.Module):
 
     def __check_init__(self):
         m = self.color.shape[0]
-        for name in ("ambient", "diffuse", "specular", "shininess", "transparency", "ior", "tex_kind", "tex_scale", "tex_image"):
+        for name in (
+            "ambient",
+            "diffuse",
+            "specular",
+            "shininess",
+            "transparency",
+            "ior",
+            "tex_kind",
+            "tex_scale",
+            "tex_image",
+        ):
             if getattr(self, name).shape != (m,):
                 raise ValueError(f"Materials.{name}: expected shape ({m},), got {getattr(self, name).shape}")
         for name in ("color", "reflectivity", "tex_color2"):

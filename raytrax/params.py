@@ -137,8 +137,7 @@ def _slots(scene, need_textures: bool = True) -> dict[str, _Slot]:
             S[f"{p}.texture.direction"] = _Slot(lambda s: s.materials.tex_direction, m, (2,))
         if kind == tx.IMAGE:
             j = int(info[1][m])
-            S[f"{p}.texture.image"] = _Slot(lambda s, j=j: s.materials.images[j], None,
-                                            tuple(mats.images[j].shape))
+            S[f"{p}.texture.image"] = _Slot(lambda s, j=j: s.materials.images[j], None, tuple(mats.images[j].shape))
 
     for i, (kind, k) in enumerate(scene.object_index):
         o = f"object[{i}]"
@@ -160,8 +159,7 @@ def _slots(scene, need_textures: bool = True) -> dict[str, _Slot]:
             S[f"{o}.max"] = _Slot(lambda s: s.boxes.hi, k, (3,))
             S[f"{o}.rotation"] = _Slot(lambda s: s.boxes.rotation, k, (3,))
         elif kind == "mesh":
-            S[f"{o}.vertices"] = _Slot(lambda s, k=k: s.meshes[k].vertices, None,
-                                       tuple(scene.meshes[k].vertices.shape))
+            S[f"{o}.vertices"] = _Slot(lambda s, k=k: s.meshes[k].vertices, None, tuple(scene.meshes[k].vertices.shape))
         else:  # pragma: no cover - a new kind without names
             raise NotImplementedError(f"raytrax.parameters: object kind {kind!r} has no parameter names")
 
@@ -228,15 +226,12 @@ def with_parameters(scene, values: Mapping[str, Any]):
             raise _unknown(name, known)
         leaf = slot.get(scene)
         v = jnp.asarray(value)
-        if not (jnp.issubdtype(v.dtype, jnp.floating) or jnp.issubdtype(v.dtype, jnp.integer)
-                or v.dtype == jnp.bool_):
+        if not (jnp.issubdtype(v.dtype, jnp.floating) or jnp.issubdtype(v.dtype, jnp.integer) or v.dtype == jnp.bool_):
             raise ValueError(f"raytrax.with_parameters: {name!r}: expected a real number array, got dtype {v.dtype}")
         if slot.rgb and v.shape == ():
             v = jnp.broadcast_to(v, (3,))
         if tuple(v.shape) != slot.shape:
-            raise ValueError(
-                f"raytrax.with_parameters: {name!r}: expected shape {slot.shape}, got {tuple(v.shape)}"
-            )
+            raise ValueError(f"raytrax.with_parameters: {name!r}: expected shape {slot.shape}, got {tuple(v.shape)}")
         if v.dtype != leaf.dtype:
             v = v.astype(leaf.dtype)
         key = id(leaf)

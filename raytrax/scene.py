@@ -174,17 +174,30 @@ class SceneBuilder:
         scene = b.build()
     """
 
-    def __init__(self, shading="classic", *, width=64, height=48, spp=1, max_depth=5,
-                 background=(0.0, 0.0, 0.0), ambient=(0.2, 0.2, 0.2), filter_textures=True,
-                 name="scene"):
+    def __init__(
+        self,
+        shading="classic",
+        *,
+        width=64,
+        height=48,
+        spp=1,
+        max_depth=5,
+        background=(0.0, 0.0, 0.0),
+        ambient=(0.2, 0.2, 0.2),
+        filter_textures=True,
+        name="scene",
+    ):
         self.shading = shading
-        self.render = dict(width=width, height=height, spp=spp, max_depth=max_depth,
-                           filter_textures=filter_textures)
+        self.render = dict(width=width, height=height, spp=spp, max_depth=max_depth, filter_textures=filter_textures)
         self.background = _rgb(background, "render.background")
         self.ambient = _rgb(ambient, "render.ambient")
         self.name = name
-        self._camera = dict(position=np.zeros(3), look_at=np.array([0.0, 0.0, -1.0]),
-                            up=np.array([0.0, 1.0, 0.0]), fov=2 * math.degrees(math.atan(10 / 40)))
+        self._camera = dict(
+            position=np.zeros(3),
+            look_at=np.array([0.0, 0.0, -1.0]),
+            up=np.array([0.0, 1.0, 0.0]),
+            fov=2 * math.degrees(math.atan(10 / 40)),
+        )
         self._lights: list = []
         self._mats: dict[str, _Mat] = {}
         self._objects: list = []  # (kind, params dict, material name)
@@ -206,12 +219,25 @@ class SceneBuilder:
 
     def light(self, position, intensity=(1.0, 1.0, 1.0)):
         i = len(self._lights)
-        self._lights.append((_arr(position, None, (3,), f"light[{i}].position"),
-                             _rgb(intensity, f"light[{i}].intensity")))
+        self._lights.append(
+            (_arr(position, None, (3,), f"light[{i}].position"), _rgb(intensity, f"light[{i}].intensity"))
+        )
         return self
 
-    def material(self, name, color=(1.0, 1.0, 1.0), *, ambient=1.0, diffuse=1.0, specular=0.0,
-                 shininess=10.0, reflectivity=0.0, transparency=0.0, ior=1.0, texture=None):
+    def material(
+        self,
+        name,
+        color=(1.0, 1.0, 1.0),
+        *,
+        ambient=1.0,
+        diffuse=1.0,
+        specular=0.0,
+        shininess=10.0,
+        reflectivity=0.0,
+        transparency=0.0,
+        ior=1.0,
+        texture=None,
+    ):
         w = f"material.{name}"
         if name in self._mats:
             raise ValueError(f"{w}: defined twice")
@@ -228,9 +254,18 @@ class SceneBuilder:
             img = np.asarray(texture.image)
             if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
                 raise ValueError(f"{w}.texture: expected an (H, W, 3) image, got shape {img.shape}")
-        self._mats[name] = _Mat(name, _rgb(color, f"{w}.color"), float(ambient), float(diffuse),
-                                float(specular), float(shininess), _rgb(reflectivity, f"{w}.reflectivity"),
-                                t, float(ior), texture)
+        self._mats[name] = _Mat(
+            name,
+            _rgb(color, f"{w}.color"),
+            float(ambient),
+            float(diffuse),
+            float(specular),
+            float(shininess),
+            _rgb(reflectivity, f"{w}.reflectivity"),
+            t,
+            float(ior),
+            texture,
+        )
         return self
 
     # -- objects ------------------------------------------------------------
@@ -261,8 +296,10 @@ class SceneBuilder:
         n = np.cross(c[2] - c[0], c[3] - c[1])
         size = max(np.ptp(c, axis=0).max(), 1e-300)
         if np.linalg.norm(n) <= 1e-9 * size * size:
-            raise ValueError(f"object[{i}].corners: expected a convex quad with non-zero area and corners in "
-                             f"order around its edge, got a degenerate or self-intersecting quad")
+            raise ValueError(
+                f"object[{i}].corners: expected a convex quad with non-zero area and corners in "
+                f"order around its edge, got a degenerate or self-intersecting quad"
+            )
         n = n / np.linalg.norm(n)
         off = np.abs((c - c[0]) @ n).max()
         if off > 1e-6 * size:
@@ -293,7 +330,9 @@ class SceneBuilder:
         lo = _arr(min, None, (3,), f"object[{i}].min")
         hi = _arr(max, None, (3,), f"object[{i}].max")
         if np.any(hi <= lo):
-            raise ValueError(f"object[{i}].max: expected every component greater than min, got min={lo.tolist()} max={hi.tolist()}")
+            raise ValueError(
+                f"object[{i}].max: expected every component greater than min, got min={lo.tolist()} max={hi.tolist()}"
+            )
         return self._add("box", material, lo=lo, hi=hi, rotation=_arr(rotation, None, (3,), f"object[{i}].rotation"))
 
     def mesh(self, vertices, faces, material):
@@ -342,14 +381,30 @@ class SceneBuilder:
         for m in mats:
             t = m.texture
             if t is None:
-                tex_kind.append(tx.NONE); tex_c2.append((0, 0, 0)); tex_scale.append(1.0); tex_dir.append((0, 1)); img_ids.append(0)
+                tex_kind.append(tx.NONE)
+                tex_c2.append((0, 0, 0))
+                tex_scale.append(1.0)
+                tex_dir.append((0, 1))
+                img_ids.append(0)
             elif isinstance(t, tx.Checker):
-                tex_kind.append(tx.CHECKER); tex_c2.append(_rgb(t.color2, f"material.{m.name}.texture.color2")); tex_scale.append(float(t.scale)); tex_dir.append((0, 1)); img_ids.append(0)
+                tex_kind.append(tx.CHECKER)
+                tex_c2.append(_rgb(t.color2, f"material.{m.name}.texture.color2"))
+                tex_scale.append(float(t.scale))
+                tex_dir.append((0, 1))
+                img_ids.append(0)
             elif isinstance(t, tx.Stripes):
-                tex_kind.append(tx.STRIPES); tex_c2.append(_rgb(t.color2, f"material.{m.name}.texture.color2")); tex_scale.append(float(t.scale)); tex_dir.append(tuple(t.direction)); img_ids.append(0)
+                tex_kind.append(tx.STRIPES)
+                tex_c2.append(_rgb(t.color2, f"material.{m.name}.texture.color2"))
+                tex_scale.append(float(t.scale))
+                tex_dir.append(tuple(t.direction))
+                img_ids.append(0)
             else:
-                tex_kind.append(tx.IMAGE); tex_c2.append((0, 0, 0)); tex_scale.append(1.0); tex_dir.append((0, 1))
-                img_ids.append(len(images)); images.append(F(np.asarray(t.image)))
+                tex_kind.append(tx.IMAGE)
+                tex_c2.append((0, 0, 0))
+                tex_scale.append(1.0)
+                tex_dir.append((0, 1))
+                img_ids.append(len(images))
+                images.append(F(np.asarray(t.image)))
             kinds.add(tex_kind[-1])
         materials = Materials(
             color=F([m.color for m in mats], (-1, 3)),
@@ -385,9 +440,15 @@ class SceneBuilder:
         planes = Planes(col("plane", "point", (-1, 3)), col("plane", "normal", (-1, 3)), mcol("plane"))
         quads = Quads(col("quad", "corners", (-1, 4, 3)), mcol("quad"))
         triangles = Triangles(col("triangle", "vertices", (-1, 3, 3)), mcol("triangle"))
-        tetra = Tetrahedra(col("tetrahedron", "center", (-1, 3)), col("tetrahedron", "size", (-1,)), mcol("tetrahedron"))
-        boxes = Boxes(col("box", "lo", (-1, 3)), col("box", "hi", (-1, 3)), col("box", "rotation", (-1, 3)), mcol("box"))
-        meshes = tuple(Mesh(F(p["vertices"]), jnp.asarray(p["faces"]), jnp.asarray(m, dtype=jnp.int32)) for p, m in groups["mesh"])
+        tetra = Tetrahedra(
+            col("tetrahedron", "center", (-1, 3)), col("tetrahedron", "size", (-1,)), mcol("tetrahedron")
+        )
+        boxes = Boxes(
+            col("box", "lo", (-1, 3)), col("box", "hi", (-1, 3)), col("box", "rotation", (-1, 3)), mcol("box")
+        )
+        meshes = tuple(
+            Mesh(F(p["vertices"]), jnp.asarray(p["faces"]), jnp.asarray(m, dtype=jnp.int32)) for p, m in groups["mesh"]
+        )
 
         splits = any(m.transparency > 0 for m in mats)
         settings = Settings(shading=self.shading, branches=2 if splits else 1, **self.render)
@@ -403,8 +464,13 @@ class SceneBuilder:
             lights=PointLights(lp, li),
             materials=materials,
             environment=Environment(F(self.background), F(self.ambient)),
-            spheres=spheres, planes=planes, quads=quads, triangles=triangles,
-            tetrahedra=tetra, boxes=boxes, meshes=meshes,
+            spheres=spheres,
+            planes=planes,
+            quads=quads,
+            triangles=triangles,
+            tetrahedra=tetra,
+            boxes=boxes,
+            meshes=meshes,
             settings=settings,
             object_index=tuple(index),
             material_names=tuple(names),

@@ -47,9 +47,24 @@ from . import textures as tx
 from ._atomic import atomic_path
 from .scene import SHADING_MODELS, Scene, SceneBuilder
 
-__all__ = ["SceneError", "SceneDescription", "CameraDesc", "RenderDesc", "LightDesc", "MaterialDesc",
-           "TextureDesc", "ObjectDesc", "load_scene", "load_description", "loads_description",
-           "save_scene", "dumps_scene", "describe_scene", "LIMITS", "check_render_value"]
+__all__ = [
+    "SceneError",
+    "SceneDescription",
+    "CameraDesc",
+    "RenderDesc",
+    "LightDesc",
+    "MaterialDesc",
+    "TextureDesc",
+    "ObjectDesc",
+    "load_scene",
+    "load_description",
+    "loads_description",
+    "save_scene",
+    "dumps_scene",
+    "describe_scene",
+    "LIMITS",
+    "check_render_value",
+]
 
 
 class SceneError(ValueError):
@@ -171,17 +186,34 @@ class SceneDescription:
         """A :class:`SceneBuilder` holding this description (validated by the builder too)."""
         try:
             r = self.render
-            b = SceneBuilder(self.shading, width=r.width, height=r.height, spp=r.spp, max_depth=r.max_depth,
-                             background=r.background, ambient=r.ambient, filter_textures=r.filter_textures,
-                             name=self.name)
+            b = SceneBuilder(
+                self.shading,
+                width=r.width,
+                height=r.height,
+                spp=r.spp,
+                max_depth=r.max_depth,
+                background=r.background,
+                ambient=r.ambient,
+                filter_textures=r.filter_textures,
+                name=self.name,
+            )
             c = self.camera
             b.camera(position=c.position, look_at=c.look_at, up=c.up, fov=c.fov)
             for light in self.lights:
                 b.light(light.position, light.intensity)
             for name, m in self.materials.items():
-                b.material(name, color=m.color, ambient=m.ambient, diffuse=m.diffuse, specular=m.specular,
-                           shininess=m.shininess, reflectivity=m.reflectivity, transparency=m.transparency,
-                           ior=m.ior, texture=None if m.texture is None else m.texture.runtime())
+                b.material(
+                    name,
+                    color=m.color,
+                    ambient=m.ambient,
+                    diffuse=m.diffuse,
+                    specular=m.specular,
+                    shininess=m.shininess,
+                    reflectivity=m.reflectivity,
+                    transparency=m.transparency,
+                    ior=m.ior,
+                    texture=None if m.texture is None else m.texture.runtime(),
+                )
             for o in self.objects:
                 p = o.params
                 if o.type == "sphere":
@@ -357,8 +389,7 @@ def _check_keys(table: dict, path: str, allowed, required=(), context: str = "")
             near = difflib.get_close_matches(k, allowed, n=1, cutoff=0.6)
             hint = f" (did you mean {near[0]!r}?)" if near else ""
             ctx = f"{context} takes" if context else "expected one of"
-            raise _KeyError(_join(path, k) if path else _key(k),
-                            f"unknown key{hint}; {ctx}: {', '.join(allowed)}")
+            raise _KeyError(_join(path, k) if path else _key(k), f"unknown key{hint}; {ctx}: {', '.join(allowed)}")
     for k in required:
         if k not in table:
             ctx = f" ({context} needs {', '.join(required)})" if context else ""
@@ -376,8 +407,10 @@ def _did_you_mean(value: str, options) -> str:
 
 def _check_pixels(width, height) -> Optional[str]:
     if width * height > LIMITS["pixels"]:
-        return (f"expected at most {LIMITS['pixels']:,} pixels, got width x height = {width} x {height} "
-                f"= {width * height:,}")
+        return (
+            f"expected at most {LIMITS['pixels']:,} pixels, got width x height = {width} x {height} "
+            f"= {width * height:,}"
+        )
     return None
 
 
@@ -393,8 +426,10 @@ def check_render_value(key: str, value) -> Optional[str]:
             return f"expected a square number of samples per pixel in [1, {LIMITS['spp']}], got {_value_text(value)}"
         if math.isqrt(value) ** 2 != value:
             lo = math.isqrt(value)
-            return (f"expected a square number of samples per pixel (1, 4, 9, 16, ...; an n x n grid), got {value} "
-                    f"(nearest: {lo * lo} or {(lo + 1) ** 2})")
+            return (
+                f"expected a square number of samples per pixel (1, 4, 9, 16, ...; an n x n grid), got {value} "
+                f"(nearest: {lo * lo} or {(lo + 1) ** 2})"
+            )
     elif key == "max_depth":
         if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= LIMITS["max_depth"]:
             return f"expected an integer in [0, {LIMITS['max_depth']}], got {_value_text(value)}"
@@ -420,8 +455,17 @@ TOP_KEYS = ("name", "shading", "camera", "render", "light", "material", "object"
 CAMERA_KEYS = ("position", "look_at", "up", "fov")
 RENDER_KEYS = ("width", "height", "spp", "max_depth", "background", "ambient", "filter_textures")
 LIGHT_KEYS = ("position", "intensity")
-MATERIAL_KEYS = ("color", "ambient", "diffuse", "specular", "shininess", "reflectivity", "transparency", "ior",
-                 "texture")
+MATERIAL_KEYS = (
+    "color",
+    "ambient",
+    "diffuse",
+    "specular",
+    "shininess",
+    "reflectivity",
+    "transparency",
+    "ior",
+    "texture",
+)
 TEXTURE_KEYS = {
     "checker": ("kind", "color2", "scale"),
     "stripes": ("kind", "color2", "scale", "direction"),
@@ -462,8 +506,11 @@ class _Parser:
         base = self.base_dir if self.base_dir is not None else os.getcwd()
         full = os.path.normpath(os.path.join(base, os.path.expanduser(rel)))
         if not os.path.exists(full):
-            raise _KeyError(path, f"expected an existing {what} file, found no file {full}"
-                            + ("" if os.path.isabs(rel) else f" ({rel!r} is read relative to {base})"))
+            raise _KeyError(
+                path,
+                f"expected an existing {what} file, found no file {full}"
+                + ("" if os.path.isabs(rel) else f" ({rel!r} is read relative to {base})"),
+            )
         if os.path.isdir(full):
             raise _KeyError(path, f"expected {_a(what)} {what} file, found a folder {full}")
         return full
@@ -476,10 +523,15 @@ class _Parser:
             raise _KeyError("name", f"expected a string, got {_show(name)}")
         shading = data.get("shading", "classic")
         if not isinstance(shading, str):
-            raise _KeyError("shading", f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got {_show(shading)}")
+            raise _KeyError(
+                "shading", f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got {_show(shading)}"
+            )
         if shading not in SHADING_MODELS:
-            raise _KeyError("shading", f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got "
-                            f"{shading!r}{_did_you_mean(shading, SHADING_MODELS)}")
+            raise _KeyError(
+                "shading",
+                f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got "
+                f"{shading!r}{_did_you_mean(shading, SHADING_MODELS)}",
+            )
         self.shading = shading
         camera = self.camera(data.get("camera", {}))
         render = self.render(data.get("render", {}))
@@ -495,11 +547,14 @@ class _Parser:
 
         mats_raw = data.get("material", {})
         if isinstance(mats_raw, list):
-            raise _KeyError("material", "expected a table of named materials ([material.NAME] sections), "
-                            "got an array of tables ([[material]])")
+            raise _KeyError(
+                "material",
+                "expected a table of named materials ([material.NAME] sections), got an array of tables ([[material]])",
+            )
         if not isinstance(mats_raw, dict):
-            raise _KeyError("material", f"expected a table of named materials ([material.NAME] sections), "
-                            f"got {_show(mats_raw)}")
+            raise _KeyError(
+                "material", f"expected a table of named materials ([material.NAME] sections), got {_show(mats_raw)}"
+            )
         if not mats_raw:
             raise _KeyError("material", "expected at least one material ([material.NAME] section), found none")
         if len(mats_raw) > LIMITS["materials"]:
@@ -522,11 +577,22 @@ class _Parser:
             if o.type == "mesh":
                 faces_total += int(o.params["faces"].shape[0])
                 if faces_total > LIMITS["mesh_faces"]:
-                    raise _KeyError(f"object[{i}]", f"expected at most {LIMITS['mesh_faces']:,} mesh triangles "
-                                    f"in all, got {faces_total:,} so far")
+                    raise _KeyError(
+                        f"object[{i}]",
+                        f"expected at most {LIMITS['mesh_faces']:,} mesh triangles in all, got {faces_total:,} so far",
+                    )
             objects.append(o)
-        return SceneDescription(name=name, shading=shading, camera=camera, render=render, lights=lights,
-                                materials=materials, objects=objects, source=self.source, base_dir=self.base_dir)
+        return SceneDescription(
+            name=name,
+            shading=shading,
+            camera=camera,
+            render=render,
+            lights=lights,
+            materials=materials,
+            objects=objects,
+            source=self.source,
+            base_dir=self.base_dir,
+        )
 
     def camera(self, t) -> CameraDesc:
         t = _table(t, "camera", "a table ([camera] section)")
@@ -536,8 +602,15 @@ class _Parser:
             if k in t:
                 setattr(d, k, _vec(t[k], f"camera.{k}"))
         if "fov" in t:
-            d.fov = _num(t["fov"], "camera.fov", lo=0.0, hi=180.0, lo_open=True, hi_open=True,
-                         what="a vertical field of view in degrees, in (0, 180)")
+            d.fov = _num(
+                t["fov"],
+                "camera.fov",
+                lo=0.0,
+                hi=180.0,
+                lo_open=True,
+                hi_open=True,
+                what="a vertical field of view in degrees, in (0, 180)",
+            )
         return d
 
     def render(self, t) -> RenderDesc:
@@ -579,8 +652,7 @@ class _Parser:
         if "reflectivity" in t:
             d.reflectivity = _rgb(t["reflectivity"], f"{path}.reflectivity", hi=hi)
         if "transparency" in t:
-            d.transparency = _num(t["transparency"], f"{path}.transparency", lo=0.0, hi=1.0,
-                                  what="a number in [0, 1]")
+            d.transparency = _num(t["transparency"], f"{path}.transparency", lo=0.0, hi=1.0, what="a number in [0, 1]")
         if "ior" in t:
             d.ior = _num(t["ior"], f"{path}.ior", lo=1.0, hi=10.0, what="a refractive index in [1, 10]")
         if "texture" in t:
@@ -588,14 +660,13 @@ class _Parser:
         return d
 
     def texture(self, t, path) -> TextureDesc:
-        t = _table(t, path, "an inline table such as { kind = \"checker\", color2 = [0, 0, 0], scale = 5 }")
+        t = _table(t, path, 'an inline table such as { kind = "checker", color2 = [0, 0, 0], scale = 5 }')
         kind = t.get("kind")
         if kind is None:
             raise _KeyError(path, f"missing key 'kind' (one of {', '.join(TEXTURE_KINDS)})")
         if not isinstance(kind, str) or kind not in TEXTURE_KINDS:
             hint = _did_you_mean(kind, TEXTURE_KINDS) if isinstance(kind, str) else ""
-            raise _KeyError(f"{path}.kind", f"expected one of {', '.join(TEXTURE_KINDS)}, got "
-                            f"{_got(kind)}{hint}")
+            raise _KeyError(f"{path}.kind", f"expected one of {', '.join(TEXTURE_KINDS)}, got {_got(kind)}{hint}")
         _check_keys(t, path, TEXTURE_KEYS[kind], required=TEXTURE_REQUIRED[kind], context=f"{_a(kind)} {kind} texture")
         d = TextureDesc(kind=kind)
         if kind in ("checker", "stripes"):
@@ -616,20 +687,25 @@ class _Parser:
             except (OSError, ValueError) as e:
                 raise _KeyError(f"{path}.file", f"expected a readable image, got an error: {e}") from None
             if img.shape[0] * img.shape[1] > LIMITS["texture_pixels"]:
-                raise _KeyError(f"{path}.file", f"expected at most {LIMITS['texture_pixels']:,} pixels, got "
-                                f"{img.shape[1]} x {img.shape[0]}")
+                raise _KeyError(
+                    f"{path}.file",
+                    f"expected at most {LIMITS['texture_pixels']:,} pixels, got {img.shape[1]} x {img.shape[0]}",
+                )
             d.file, d.image, d.source = t["file"], img, full
         else:
             name = t["name"]
             if not isinstance(name, str) or name not in tx.BUILTIN_IMAGES:
                 hint = _did_you_mean(name, tx.BUILTIN_IMAGES) if isinstance(name, str) else ""
-                raise _KeyError(f"{path}.name", f"expected one of {', '.join(tx.BUILTIN_IMAGES)}, got "
-                                f"{_got(name)}{hint}")
+                raise _KeyError(
+                    f"{path}.name", f"expected one of {', '.join(tx.BUILTIN_IMAGES)}, got {_got(name)}{hint}"
+                )
             d.name, d.image = name, _builtin(name)
         if d.image is not None and self.shading == "physical" and float(d.image.max()) > 1.0:
-            raise _KeyError(f"{path}.{'file' if kind == 'image' else 'name'}",
-                            f"expected an image with values in [0, 1] in physical shading (an albedo), "
-                            f"found values up to {float(d.image.max()):.4g}")
+            raise _KeyError(
+                f"{path}.{'file' if kind == 'image' else 'name'}",
+                f"expected an image with values in [0, 1] in physical shading (an albedo), "
+                f"found values up to {float(d.image.max()):.4g}",
+            )
         return d
 
     def object(self, t, path, materials) -> ObjectDesc:
@@ -639,16 +715,23 @@ class _Parser:
             raise _KeyError(path, f"missing key 'type' (one of {', '.join(OBJECT_TYPES)})")
         if not isinstance(typ, str) or typ not in OBJECT_TYPES:
             hint = _did_you_mean(typ, OBJECT_TYPES) if isinstance(typ, str) else ""
-            raise _KeyError(f"{path}.type", f"expected one of {', '.join(OBJECT_TYPES)}, got "
-                            f"{_got(typ)}{hint}")
-        _check_keys(t, path, ("type", "material") + OBJECT_KEYS[typ],
-                    required=("type", "material") + OBJECT_REQUIRED[typ], context=f"{_a(typ)} {typ}")
+            raise _KeyError(f"{path}.type", f"expected one of {', '.join(OBJECT_TYPES)}, got {_got(typ)}{hint}")
+        _check_keys(
+            t,
+            path,
+            ("type", "material") + OBJECT_KEYS[typ],
+            required=("type", "material") + OBJECT_REQUIRED[typ],
+            context=f"{_a(typ)} {typ}",
+        )
         mat = t["material"]
         if not isinstance(mat, str):
             raise _KeyError(f"{path}.material", f"expected a material name (a string), got {_show(mat)}")
         if mat not in materials:
-            raise _KeyError(f"{path}.material", f"expected a defined material, got undefined material {mat!r}"
-                            f"{_did_you_mean(mat, materials)}; defined: {', '.join(materials)}")
+            raise _KeyError(
+                f"{path}.material",
+                f"expected a defined material, got undefined material {mat!r}"
+                f"{_did_you_mean(mat, materials)}; defined: {', '.join(materials)}",
+            )
         p: dict[str, Any] = {}
         if typ == "sphere":
             p["center"] = _vec(t["center"], f"{path}.center")
@@ -659,16 +742,18 @@ class _Parser:
             if not any(p["normal"]):
                 raise _KeyError(f"{path}.normal", "expected a non-zero vector, got [0, 0, 0]")
         elif typ == "quad":
-            p["corners"] = _matrix(t["corners"], f"{path}.corners", 4,
-                                   "an array of 4 corners ([x, y, z] each, in order around the edge)")
+            p["corners"] = _matrix(
+                t["corners"], f"{path}.corners", 4, "an array of 4 corners ([x, y, z] each, in order around the edge)"
+            )
         elif typ == "triangle":
             p["vertices"] = _matrix(t["vertices"], f"{path}.vertices", 3, "an array of 3 vertices ([x, y, z] each)")
         elif typ == "box":
             p["min"] = _vec(t["min"], f"{path}.min")
             p["max"] = _vec(t["max"], f"{path}.max")
             if "rotation" in t:
-                p["rotation"] = _vec(t["rotation"], f"{path}.rotation",
-                                     what="an array of 3 angles in degrees ([rx, ry, rz])")
+                p["rotation"] = _vec(
+                    t["rotation"], f"{path}.rotation", what="an array of 3 angles in degrees ([rx, ry, rz])"
+                )
         elif typ == "tetrahedron":
             p["center"] = _vec(t["center"], f"{path}.center")
             p["size"] = _num(t["size"], f"{path}.size", lo=0.0, lo_open=True, what="a positive edge length")
@@ -697,8 +782,10 @@ class _Parser:
                 v = np.asarray(m.vertices, dtype=np.float64)
                 f = np.asarray(m.faces, dtype=np.int64)
             except Exception as e:  # trimesh raises many types on bad input
-                raise _KeyError(f"{path}.file", f"expected a readable mesh, got an error reading {rel!r}: "
-                                f"{type(e).__name__}: {e}".splitlines()[0]) from None
+                raise _KeyError(
+                    f"{path}.file",
+                    f"expected a readable mesh, got an error reading {rel!r}: {type(e).__name__}: {e}".splitlines()[0],
+                ) from None
             if f.ndim != 2 or f.shape[0] == 0:
                 raise _KeyError(f"{path}.file", f"expected a mesh with triangles, found none in {rel!r}")
             p["file"], p["source"] = rel, full
@@ -708,9 +795,13 @@ class _Parser:
                     raise _KeyError(path, f"missing key {k!r} (an inline mesh needs vertices and faces)")
             vr, fr = t["vertices"], t["faces"]
             if not isinstance(vr, list) or len(vr) < 3:
-                raise _KeyError(f"{path}.vertices", f"expected an array of at least 3 [x, y, z] vertices, got {_show(vr)}")
+                raise _KeyError(
+                    f"{path}.vertices", f"expected an array of at least 3 [x, y, z] vertices, got {_show(vr)}"
+                )
             if not isinstance(fr, list) or len(fr) < 1:
-                raise _KeyError(f"{path}.faces", f"expected an array of [i, j, k] vertex-index triples, got {_show(fr)}")
+                raise _KeyError(
+                    f"{path}.faces", f"expected an array of [i, j, k] vertex-index triples, got {_show(fr)}"
+                )
             if len(fr) > LIMITS["mesh_faces"]:
                 raise _KeyError(f"{path}.faces", f"expected at most {LIMITS['mesh_faces']:,} faces, got {len(fr):,}")
             v = np.asarray([_vec(x, f"{path}.vertices[{i}]") for i, x in enumerate(vr)], dtype=np.float64)
@@ -719,8 +810,12 @@ class _Parser:
                 fp = f"{path}.faces[{i}]"
                 if not isinstance(x, list) or len(x) != 3:
                     raise _KeyError(fp, f"expected an array of 3 vertex indices, got {_show(x)}")
-                rows.append([_int(j, f"{fp}[{k}]", lo=0, hi=len(vr) - 1,
-                                  what=f"a vertex index in [0, {len(vr) - 1}]") for k, j in enumerate(x)])
+                rows.append(
+                    [
+                        _int(j, f"{fp}[{k}]", lo=0, hi=len(vr) - 1, what=f"a vertex index in [0, {len(vr) - 1}]")
+                        for k, j in enumerate(x)
+                    ]
+                )
             f = np.asarray(rows, dtype=np.int64)
         scale = (1.0, 1.0, 1.0)
         if "scale" in t:
@@ -742,8 +837,9 @@ class _Parser:
         return p
 
 
-def loads_description(text: str, *, source: str = "<string>", base_dir: Optional[str] = None,
-                      default_name: str = "scene") -> SceneDescription:
+def loads_description(
+    text: str, *, source: str = "<string>", base_dir: Optional[str] = None, default_name: str = "scene"
+) -> SceneDescription:
     """Parse and validate scene TOML ``text`` (files are read relative to ``base_dir``)."""
     try:
         data = tomllib.loads(text)
@@ -772,7 +868,9 @@ def load_description(path) -> SceneDescription:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise SceneError(f"{path}: invalid TOML: expected UTF-8 text, found byte {raw[e.start]:#04x} at offset {e.start}") from None
+        raise SceneError(
+            f"{path}: invalid TOML: expected UTF-8 text, found byte {raw[e.start]:#04x} at offset {e.start}"
+        ) from None
     base = os.path.dirname(os.path.abspath(path))
     return loads_description(text, source=path, base_dir=base, default_name=Path(path).stem)
 
@@ -835,8 +933,13 @@ def _find_image_source(img: np.ndarray) -> Optional[TextureDesc]:
 
 def _find_mesh_source(v: np.ndarray, f: np.ndarray) -> Optional[dict]:
     for sv, sf, meta in reversed(_MESH_SOURCES):
-        if (sv.shape == v.shape and sf.shape == f.shape and np.array_equal(sf, f)
-                and np.array_equal(sv.astype(v.dtype), v) and os.path.exists(meta["source"])):
+        if (
+            sv.shape == v.shape
+            and sf.shape == f.shape
+            and np.array_equal(sf, f)
+            and np.array_equal(sv.astype(v.dtype), v)
+            and os.path.exists(meta["source"])
+        ):
             return meta
     return None
 
@@ -861,8 +964,9 @@ def describe_scene(scene: Scene) -> SceneDescription:
     st = scene.settings
     env, cam = S.environment, S.camera
     camera = CameraDesc(vec(cam.position), vec(cam.look_at), vec(cam.up), float(cam.fov))
-    render = RenderDesc(st.width, st.height, st.spp, st.max_depth, vec(env.background), vec(env.ambient),
-                        bool(st.filter_textures))
+    render = RenderDesc(
+        st.width, st.height, st.spp, st.max_depth, vec(env.background), vec(env.ambient), bool(st.filter_textures)
+    )
     lights = [LightDesc(vec(p), vec(i)) for p, i in zip(S.lights.position, S.lights.intensity)]
 
     M = S.materials
@@ -874,8 +978,9 @@ def describe_scene(scene: Scene) -> SceneDescription:
         if kind == tx.CHECKER:
             tex = TextureDesc("checker", color2=vec(M.tex_color2[k]), scale=float(M.tex_scale[k]))
         elif kind == tx.STRIPES:
-            tex = TextureDesc("stripes", color2=vec(M.tex_color2[k]), scale=float(M.tex_scale[k]),
-                              direction=vec(M.tex_direction[k]))
+            tex = TextureDesc(
+                "stripes", color2=vec(M.tex_color2[k]), scale=float(M.tex_scale[k]), direction=vec(M.tex_direction[k])
+            )
         elif kind == tx.IMAGE:
             img = M.images[int(M.tex_image[k])]
             src = _find_image_source(img)
@@ -884,10 +989,16 @@ def describe_scene(scene: Scene) -> SceneDescription:
             else:
                 tex = TextureDesc("image", image=img)  # written as a sidecar EXR by save_scene
         materials[name] = MaterialDesc(
-            color=vec(M.color[k]), ambient=float(M.ambient[k]), diffuse=float(M.diffuse[k]),
-            specular=float(M.specular[k]), shininess=float(M.shininess[k]),
-            reflectivity=vec(M.reflectivity[k]), transparency=float(M.transparency[k]),
-            ior=float(M.ior[k]), texture=tex)
+            color=vec(M.color[k]),
+            ambient=float(M.ambient[k]),
+            diffuse=float(M.diffuse[k]),
+            specular=float(M.specular[k]),
+            shininess=float(M.shininess[k]),
+            reflectivity=vec(M.reflectivity[k]),
+            transparency=float(M.transparency[k]),
+            ior=float(M.ior[k]),
+            texture=tex,
+        )
 
     objects = []
     for kind, j in scene.object_index:
@@ -922,8 +1033,17 @@ def describe_scene(scene: Scene) -> SceneDescription:
             raise SceneError(f"{scene.name}: unknown object kind {kind!r}")
         mat = g.material if kind == "mesh" else g.material[j]
         objects.append(ObjectDesc(kind, names[int(mat)], p))
-    return SceneDescription(name=scene.name, shading=st.shading, camera=camera, render=render, lights=lights,
-                            materials=materials, objects=objects, source=f"<scene {scene.name}>", float32=f32)
+    return SceneDescription(
+        name=scene.name,
+        shading=st.shading,
+        camera=camera,
+        render=render,
+        lights=lights,
+        materials=materials,
+        objects=objects,
+        source=f"<scene {scene.name}>",
+        float32=f32,
+    )
 
 
 # -----------------------------------------------------------------------------
@@ -1001,8 +1121,9 @@ def _relative(source: str, folder: str) -> str:
     return rel.replace(os.sep, "/")
 
 
-def dumps_scene(desc: SceneDescription, folder: Optional[str] = None, *, sidecars: Optional[list] = None,
-                stem: str = "scene") -> str:
+def dumps_scene(
+    desc: SceneDescription, folder: Optional[str] = None, *, sidecars: Optional[list] = None, stem: str = "scene"
+) -> str:
     """The TOML text of a description. File references are written relative to
     ``folder``; image textures with no file get sidecar names ``<stem>.<material>.exr``
     appended to ``sidecars`` as ``(name, image)`` (the caller writes them)."""
@@ -1012,15 +1133,28 @@ def dumps_scene(desc: SceneDescription, folder: Optional[str] = None, *, sidecar
     L.append(f"name = {w.val(desc.name)}")
     L.append(f"shading = {w.val(desc.shading)}")
     c = desc.camera
-    L += ["", "[camera]", f"position = {w.val(c.position)}", f"look_at = {w.val(c.look_at)}",
-          f"up = {w.val(c.up)}", f"fov = {w.num(c.fov)}"]
+    L += [
+        "",
+        "[camera]",
+        f"position = {w.val(c.position)}",
+        f"look_at = {w.val(c.look_at)}",
+        f"up = {w.val(c.up)}",
+        f"fov = {w.num(c.fov)}",
+    ]
     r = desc.render
-    L += ["", "[render]", f"width = {r.width}", f"height = {r.height}", f"spp = {r.spp}",
-          f"max_depth = {r.max_depth}", f"background = {w.val(w.rgb(r.background))}",
-          f"ambient = {w.val(w.rgb(r.ambient))}", f"filter_textures = {w.val(r.filter_textures)}"]
+    L += [
+        "",
+        "[render]",
+        f"width = {r.width}",
+        f"height = {r.height}",
+        f"spp = {r.spp}",
+        f"max_depth = {r.max_depth}",
+        f"background = {w.val(w.rgb(r.background))}",
+        f"ambient = {w.val(w.rgb(r.ambient))}",
+        f"filter_textures = {w.val(r.filter_textures)}",
+    ]
     for light in desc.lights:
-        L += ["", "[[light]]", f"position = {w.val(light.position)}",
-              f"intensity = {w.val(w.rgb(light.intensity))}"]
+        L += ["", "[[light]]", f"position = {w.val(light.position)}", f"intensity = {w.val(w.rgb(light.intensity))}"]
     default = MaterialDesc()
     for name, m in desc.materials.items():
         L += ["", f"[material.{_key(name)}]", f"color = {w.val(w.rgb(m.color))}"]
@@ -1034,8 +1168,12 @@ def dumps_scene(desc: SceneDescription, folder: Optional[str] = None, *, sidecar
             if t.kind == "checker":
                 d = dict(kind="checker", color2=w.rgb(t.color2), scale=float(t.scale))
             elif t.kind == "stripes":
-                d = dict(kind="stripes", color2=w.rgb(t.color2), scale=float(t.scale),
-                         direction=tuple(float(x) for x in t.direction))
+                d = dict(
+                    kind="stripes",
+                    color2=w.rgb(t.color2),
+                    scale=float(t.scale),
+                    direction=tuple(float(x) for x in t.direction),
+                )
             elif t.kind == "builtin":
                 d = dict(kind="builtin", name=t.name)
             elif t.source is not None:
@@ -1044,8 +1182,10 @@ def dumps_scene(desc: SceneDescription, folder: Optional[str] = None, *, sidecar
                 d = dict(kind="image", file=_relative(os.path.join(desc.base_dir, t.file), folder))
             else:
                 if sidecars is None:
-                    raise SceneError(f"{desc.source}: material.{_key(name)}.texture: an image with no file "
-                                     "can only be saved with save_scene (as a sidecar EXR)")
+                    raise SceneError(
+                        f"{desc.source}: material.{_key(name)}.texture: an image with no file "
+                        "can only be saved with save_scene (as a sidecar EXR)"
+                    )
                 safe = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
                 fname = f"{stem}.{safe}.exr"
                 sidecars.append((fname, t.image))

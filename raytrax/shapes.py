@@ -195,9 +195,15 @@ def euler_matrix(deg):
     cx, cy, cz = jnp.cos(r[:, 0]), jnp.cos(r[:, 1]), jnp.cos(r[:, 2])
     sx, sy, sz = jnp.sin(r[:, 0]), jnp.sin(r[:, 1]), jnp.sin(r[:, 2])
     one, zero = jnp.ones_like(cx), jnp.zeros_like(cx)
-    Rx = jnp.stack([jnp.stack([one, zero, zero], -1), jnp.stack([zero, cx, -sx], -1), jnp.stack([zero, sx, cx], -1)], -2)
-    Ry = jnp.stack([jnp.stack([cy, zero, sy], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sy, zero, cy], -1)], -2)
-    Rz = jnp.stack([jnp.stack([cz, -sz, zero], -1), jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+    Rx = jnp.stack(
+        [jnp.stack([one, zero, zero], -1), jnp.stack([zero, cx, -sx], -1), jnp.stack([zero, sx, cx], -1)], -2
+    )
+    Ry = jnp.stack(
+        [jnp.stack([cy, zero, sy], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sy, zero, cy], -1)], -2
+    )
+    Rz = jnp.stack(
+        [jnp.stack([cz, -sz, zero], -1), jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, one], -1)], -2
+    )
     return Rz @ Ry @ Rx
 
 
@@ -289,9 +295,15 @@ def tri_soa(v0, v1, v2):
     """SoA of triangles from vertex arrays ``(T, 3)`` each."""
     e1, e2 = v1 - v0, v2 - v0
     return dict(
-        ax=v0[:, 0], ay=v0[:, 1], az=v0[:, 2],
-        e1x=e1[:, 0], e1y=e1[:, 1], e1z=e1[:, 2],
-        e2x=e2[:, 0], e2y=e2[:, 1], e2z=e2[:, 2],
+        ax=v0[:, 0],
+        ay=v0[:, 1],
+        az=v0[:, 2],
+        e1x=e1[:, 0],
+        e1y=e1[:, 1],
+        e1z=e1[:, 2],
+        e2x=e2[:, 0],
+        e2y=e2[:, 1],
+        e2z=e2[:, 2],
     )
 
 

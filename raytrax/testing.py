@@ -81,9 +81,14 @@ def smooth_weights(height: int, width: int) -> np.ndarray:
     derivative; with these weights the kinks are small and a step that moves edges by a
     tenth of a pixel does converge."""
     yy, xx = np.meshgrid((np.arange(height) + 0.5) / height, (np.arange(width) + 0.5) / width, indexing="ij")
-    return np.stack([0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
-                     0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
-                     0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0)], -1)
+    return np.stack(
+        [
+            0.5 + 0.4 * np.sin(2 * np.pi * (0.7 * xx + 0.3 * yy) + 0.3),
+            0.5 + 0.4 * np.sin(2 * np.pi * (-0.4 * xx + 0.8 * yy) + 1.1),
+            0.5 + 0.4 * np.cos(2 * np.pi * (0.5 * xx - 0.6 * yy) + 2.0),
+        ],
+        -1,
+    )
 
 
 def image_loss(scene, target, *, weights=None, **render_kwargs) -> Callable[[Mapping[str, Any]], jax.Array]:
@@ -147,8 +152,7 @@ class GradientRow:
 
     @property
     def ok(self) -> bool:
-        return bool(np.isfinite(self.rev) and (self.fwd is None or np.isfinite(self.fwd))
-                    and self.err <= self.tol)
+        return bool(np.isfinite(self.rev) and (self.fwd is None or np.isfinite(self.fwd)) and self.err <= self.tol)
 
     @property
     def label(self) -> str:
@@ -202,15 +206,18 @@ class GradientReport:
             cells.append(flag)
             lines.append(cells)
         widths = [max(len(h), *(len(c[i]) for c in lines)) if lines else len(h) for i, h in enumerate(head)]
-        fmt = lambda cells: "  ".join(c.rjust(w) if 0 < i < len(cells) - 1 else c.ljust(w)
-                                      for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+        fmt = lambda cells: "  ".join(
+            c.rjust(w) if 0 < i < len(cells) - 1 else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
+        ).rstrip()
         return "\n".join([fmt(head), fmt(["-" * w for w in widths])] + [fmt(c) for c in lines])
 
     def __str__(self) -> str:
         n, bad = len(self.rows), len(self.failures)
-        head = (f"gradient check: {n - bad}/{n} components pass (|AD - FD| <= atol + rtol |FD|, "
-                f"rtol={self.rtol:.1e}, atol={self.atol:.2e}; f = {self.value:.9g}); "
-                f"max relative error {self.max_rel_err:.2e}")
+        head = (
+            f"gradient check: {n - bad}/{n} components pass (|AD - FD| <= atol + rtol |FD|, "
+            f"rtol={self.rtol:.1e}, atol={self.atol:.2e}; f = {self.value:.9g}); "
+            f"max relative error {self.max_rel_err:.2e}"
+        )
         return head + "\n" + self.table()
 
 
@@ -261,9 +268,18 @@ def _steps(step, rel_step, comps, params) -> list[float]:
     return out
 
 
-def gradient_report(fn: Callable, params: Mapping[str, Any], *, names=None, rtol: float = 1e-4,
-                    atol: Optional[float] = None, step=None, rel_step: float = _EPS64 ** (1.0 / 3.0),
-                    forward_mode: bool = True, fd_consistency: bool = False) -> GradientReport:
+def gradient_report(
+    fn: Callable,
+    params: Mapping[str, Any],
+    *,
+    names=None,
+    rtol: float = 1e-4,
+    atol: Optional[float] = None,
+    step=None,
+    rel_step: float = _EPS64 ** (1.0 / 3.0),
+    forward_mode: bool = True,
+    fd_consistency: bool = False,
+) -> GradientReport:
     """Like :func:`check_gradients` but returns the :class:`GradientReport` without
     raising."""
     _require_x64("raytrax.testing.check_gradients")
@@ -330,14 +346,22 @@ def gradient_report(fn: Callable, params: Mapping[str, Any], *, names=None, rtol
         tol = atol + rtol * abs(d)
         if atol_auto:  # the rounding error of the difference quotient itself
             tol += 16.0 * _EPS64 * max(abs(f0), 1e-300) / h
-        rows.append(GradientRow(n, i, tuple(np.shape(host[n])), float(host[n].reshape(-1)[i]), h, d, r, fw,
-                                tol, dh))
+        rows.append(GradientRow(n, i, tuple(np.shape(host[n])), float(host[n].reshape(-1)[i]), h, d, r, fw, tol, dh))
     return GradientReport(rows, f0, rtol, atol)
 
 
-def check_gradients(fn: Callable, params: Mapping[str, Any], *, names=None, rtol: float = 1e-4,
-                    atol: Optional[float] = None, step=None, rel_step: float = _EPS64 ** (1.0 / 3.0),
-                    forward_mode: bool = True, fd_consistency: bool = False) -> GradientReport:
+def check_gradients(
+    fn: Callable,
+    params: Mapping[str, Any],
+    *,
+    names=None,
+    rtol: float = 1e-4,
+    atol: Optional[float] = None,
+    step=None,
+    rel_step: float = _EPS64 ** (1.0 / 3.0),
+    forward_mode: bool = True,
+    fd_consistency: bool = False,
+) -> GradientReport:
     """Check the derivatives of ``fn(params) -> scalar`` against central finite differences.
 
     - ``fn``: a function of a dict of float64 arrays (e.g. from
@@ -365,8 +389,17 @@ def check_gradients(fn: Callable, params: Mapping[str, Any], *, names=None, rtol
     Returns the :class:`GradientReport` when every component passes; otherwise
     raises ``AssertionError`` whose message is the report's table.
     """
-    rep = gradient_report(fn, params, names=names, rtol=rtol, atol=atol, step=step, rel_step=rel_step,
-                          forward_mode=forward_mode, fd_consistency=fd_consistency)
+    rep = gradient_report(
+        fn,
+        params,
+        names=names,
+        rtol=rtol,
+        atol=atol,
+        step=step,
+        rel_step=rel_step,
+        forward_mode=forward_mode,
+        fd_consistency=fd_consistency,
+    )
     if not rep.ok:
         bad = rep.failures
         raise AssertionError(

@@ -75,8 +75,12 @@ def _search(scene, o, d, tmax):
     assert tri.accel is not None  # the BVH is in use (checked at trace time)
     ray = (o[0], o[1], o[2], d[0], d[1], d[2])
     nm = scene.materials.color.shape[0]
-    return (I._closest_kind(tri, ray, 0.0), I._closest_kind(tri._replace(accel=None), ray, 0.0),
-            I.occluder_counts(kinds, o, d, tmax, nm), I.occluder_counts(brute, o, d, tmax, nm))
+    return (
+        I._closest_kind(tri, ray, 0.0),
+        I._closest_kind(tri._replace(accel=None), ray, 0.0),
+        I.occluder_counts(kinds, o, d, tmax, nm),
+        I.occluder_counts(brute, o, d, tmax, nm),
+    )
 
 
 def _check_search(scene, o, d):
@@ -109,7 +113,7 @@ def test_builder_makes_a_bvh_only_for_many_triangles():
     v, f = _sphere()
     s = _scene(v, f)
     assert s.bvh is not None and s.bvh.n_triangles == 320 + 1 + 4
-    assert _scene(v, f[:B.MIN_TRIANGLES - 5]).bvh is None
+    assert _scene(v, f[: B.MIN_TRIANGLES - 5]).bvh is None
 
 
 @pytest.mark.parametrize("mesh", ["soup", "icosphere", "grid"])

@@ -188,8 +188,9 @@ def exact_coverage():
 
 @pytest.fixture(scope="module")
 def aa_scene():
-    b = rt.SceneBuilder("classic", width=AA_W, height=AA_H, spp=1, max_depth=0,
-                        background=(0.0, 0.0, 0.0), ambient=(1.0, 1.0, 1.0))
+    b = rt.SceneBuilder(
+        "classic", width=AA_W, height=AA_H, spp=1, max_depth=0, background=(0.0, 0.0, 0.0), ambient=(1.0, 1.0, 1.0)
+    )
     b.camera(position=(0.0, 0.0, AA_DIST), look_at=(0.0, 0.0, 0.0), fov=AA_FOV)
     b.material("white", color=(1.0, 1.0, 1.0), ambient=1.0)
     b.quad(_pix_to_world(AA_POLY), "white")

@@ -39,8 +39,15 @@ def env(tmp_path_factory):
 
 
 def run(args, cwd, env, **kw):
-    return subprocess.run([sys.executable, "-m", "raytrax.cli", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=300, **kw)
+    return subprocess.run(
+        [sys.executable, "-m", "raytrax.cli", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        **kw,
+    )
 
 
 def one_line(stderr: str) -> str:
@@ -124,16 +131,28 @@ def test_user_error_exit_2_one_line_no_files(tmp_path, env):
     # Through the installed console script where there is one (pyproject's [project.scripts]).
     exe = shutil.which("raytrax")
     cmd = [exe] if exe else [sys.executable, "-m", "raytrax.cli"]
-    r = subprocess.run([*cmd, "render", "bad.toml", "-o", "out.png"], cwd=tmp_path, env=env, capture_output=True,
-                       text=True, timeout=300)
+    r = subprocess.run(
+        [*cmd, "render", "bad.toml", "-o", "out.png"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 2
     assert one_line(r.stderr) == "raytrax: error: bad.toml: object[0].radius: expected a positive number, got -1"
     assert sorted(os.listdir(tmp_path)) == ["bad.toml"]
 
 
 def test_interrupt_leaves_no_output(tmp_path, env, rendered):
-    p = subprocess.Popen([sys.executable, "-m", "raytrax.cli", "render", TINY, "-o", "int.png", *SMALL],
-                         cwd=tmp_path, env=env, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "raytrax.cli", "render", TINY, "-o", "int.png", *SMALL],
+        cwd=tmp_path,
+        env=env,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         seen = ""
         deadline = time.time() + 120
@@ -166,26 +185,42 @@ def main_err(capsys, argv):
     return code, cap.out, cap.err
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["render", "--width", "0"], "--width: expected an integer number of pixels in [1, 65536], got 0"),
-    (["render", "--width", "abc"], "argument --width: expected an integer, got 'abc' (see 'raytrax render --help')"),
-    (["render", "--height", "70000"], "--height: expected an integer number of pixels in [1, 65536], got 70000"),
-    (["render", "--width", "20000", "--height", "20000"],
-     "{seed}: render: expected at most 100,000,000 pixels, got width x height = 20000 x 20000 = 400,000,000"),
-    (["render", "--spp", "2"], "--spp: expected a square number of samples per pixel (1, 4, 9, 16, ...; an n x n "
-                               "grid), got 2 (nearest: 1 or 4)"),
-    (["render", "--spp", "4096"], "--spp: expected a square number of samples per pixel in [1, 1024], got 4096"),
-    (["render", "--depth", "65"], "--depth: expected an integer in [0, 64], got 65"),
-    (["render", "-o", "out.tif"], "out.tif: cannot write images of type '.tif'; expected one of .exr, .png, .jpg, .jpeg"),
-    (["render", "-o", "noext"], "noext: cannot write images of type '(no extension)'; expected one of .exr, .png, "
-                                ".jpg, .jpeg"),
-    (["render", "-o", "out.jpg", "--bits", "16"], "--bits: expected one of (8,) for .jpg files, got 16"),
-    (["render", "-o", "nowhere/out.png"], "nowhere/out.png: cannot write: folder {cwd}/nowhere does not exist"),
-    (["render", "a.toml", "b.toml"], "unrecognized arguments: b.toml (see 'raytrax --help')"),
-    (["paint"], "argument COMMAND: invalid choice: 'paint' (choose from render, info) (see 'raytrax --help')"),
-    ([], "the following arguments are required: COMMAND (see 'raytrax --help')"),
-    (["info", "missing.toml"], "missing.toml: scene file not found"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["render", "--width", "0"], "--width: expected an integer number of pixels in [1, 65536], got 0"),
+        (
+            ["render", "--width", "abc"],
+            "argument --width: expected an integer, got 'abc' (see 'raytrax render --help')",
+        ),
+        (["render", "--height", "70000"], "--height: expected an integer number of pixels in [1, 65536], got 70000"),
+        (
+            ["render", "--width", "20000", "--height", "20000"],
+            "{seed}: render: expected at most 100,000,000 pixels, got width x height = 20000 x 20000 = 400,000,000",
+        ),
+        (
+            ["render", "--spp", "2"],
+            "--spp: expected a square number of samples per pixel (1, 4, 9, 16, ...; an n x n "
+            "grid), got 2 (nearest: 1 or 4)",
+        ),
+        (["render", "--spp", "4096"], "--spp: expected a square number of samples per pixel in [1, 1024], got 4096"),
+        (["render", "--depth", "65"], "--depth: expected an integer in [0, 64], got 65"),
+        (
+            ["render", "-o", "out.tif"],
+            "out.tif: cannot write images of type '.tif'; expected one of .exr, .png, .jpg, .jpeg",
+        ),
+        (
+            ["render", "-o", "noext"],
+            "noext: cannot write images of type '(no extension)'; expected one of .exr, .png, .jpg, .jpeg",
+        ),
+        (["render", "-o", "out.jpg", "--bits", "16"], "--bits: expected one of (8,) for .jpg files, got 16"),
+        (["render", "-o", "nowhere/out.png"], "nowhere/out.png: cannot write: folder {cwd}/nowhere does not exist"),
+        (["render", "a.toml", "b.toml"], "unrecognized arguments: b.toml (see 'raytrax --help')"),
+        (["paint"], "argument COMMAND: invalid choice: 'paint' (choose from render, info) (see 'raytrax --help')"),
+        ([], "the following arguments are required: COMMAND (see 'raytrax --help')"),
+        (["info", "missing.toml"], "missing.toml: scene file not found"),
+    ],
+)
 def test_usage_errors(capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)
     code, out, err = main_err(capsys, argv)
@@ -225,10 +260,12 @@ def test_info_seed_scene(capsys):
 
 def test_info_counts_meshes(capsys, tmp_path):
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\n")
-    (tmp_path / "s.toml").write_text('shading = "physical"\n[render]\nwidth = 10\nheight = 10\nmax_depth = 0\n'
-                                     '[[light]]\nposition = [0, 5, 0]\nintensity = 100\n'
-                                     '[material.m]\ncolor = 0.5\n'
-                                     '[[object]]\ntype = "mesh"\nmaterial = "m"\nfile = "m.obj"\n')
+    (tmp_path / "s.toml").write_text(
+        'shading = "physical"\n[render]\nwidth = 10\nheight = 10\nmax_depth = 0\n'
+        "[[light]]\nposition = [0, 5, 0]\nintensity = 100\n"
+        "[material.m]\ncolor = 0.5\n"
+        '[[object]]\ntype = "mesh"\nmaterial = "m"\nfile = "m.obj"\n'
+    )
     code, out, err = main_err(capsys, ["info", str(tmp_path / "s.toml")])
     assert code == 0, err
     assert "'m.obj', 4 vertices, 3 triangles" in out and "intensity 100 W/sr" in out

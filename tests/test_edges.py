@@ -46,8 +46,7 @@ def quad_scene():
     11.4) and y in [-3, 3] (pixel rows 3 to 9: its horizontal edges lie on sample-row
     boundaries for every grid size, so the row quadrature is exact). Classic shading
     with no light: the quad's radiance is the constant ``ambient * color``."""
-    b = rt.SceneBuilder("classic", width=QW, height=QH, spp=4, max_depth=0, background=(0, 0, 0),
-                        ambient=(1, 1, 1))
+    b = rt.SceneBuilder("classic", width=QW, height=QH, spp=4, max_depth=0, background=(0, 0, 0), ambient=(1, 1, 1))
     b.camera(position=(0.0, 0.0, 10.0), look_at=(0, 0, 0), fov=math.degrees(2 * math.atan(QH / 2 / 10)))
     b.material("q", color=tuple(ALBEDO), ambient=AMBIENT)
     b.quad([(-2.3, -3, 0), (3.4, -3, 0), (3.4, 3, 0), (-2.3, 3, 0)], "q")
@@ -90,8 +89,7 @@ def test_edge_mode_leaves_the_image_unchanged():
 def test_edge_budget_overflow_is_a_clear_error():
     zero = jnp.asarray(0.0, jnp.float64)
     with pytest.raises(Exception, match="edge_budget"):
-        jax.block_until_ready(jax.grad(lambda d: _moment(d, spp=9, edge_gradients=True,
-                                                         edge_budget=5))(zero))
+        jax.block_until_ready(jax.grad(lambda d: _moment(d, spp=9, edge_gradients=True, edge_budget=5))(zero))
 
 
 def test_bad_edge_options():
@@ -122,25 +120,36 @@ def occluder_scene():
     """``scenes/edge_occluders.toml``: a checkered floor (filtered texture) under two lights,
     with a sphere, a box (lifted, rotated) and a tetrahedron casting shadows and silhouettes,
     16 x 12, spp 256 (the benchmark loads the same file)."""
-    s = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_occluders.toml"),
-                      dtype=jnp.float64)
+    s = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_occluders.toml"), dtype=jnp.float64)
     assert (s.settings.width, s.settings.height, s.settings.spp) == (FW, FH, EDGE_SPP)
     return s
 
 
 def _occ_params():
     p = rt.parameters(occluder_scene())
-    return {"light0": p["light[0].position"], "light1": p["light[1].position"], "center": p["object[1].center"],
-            "radius": p["object[1].radius"], "box": jnp.zeros(3, jnp.float64)}
+    return {
+        "light0": p["light[0].position"],
+        "light1": p["light[1].position"],
+        "center": p["object[1].center"],
+        "radius": p["object[1].radius"],
+        "box": jnp.zeros(3, jnp.float64),
+    }
 
 
 def _occ_loss(q, **kw):
     s = occluder_scene()
     p = rt.parameters(s)
-    s = rt.with_parameters(s, {"light[0].position": q["light0"], "light[1].position": q["light1"],
-                               "object[1].center": q["center"], "object[1].radius": q["radius"],
-                               "object[2].min": p["object[2].min"] + q["box"],
-                               "object[2].max": p["object[2].max"] + q["box"]})
+    s = rt.with_parameters(
+        s,
+        {
+            "light[0].position": q["light0"],
+            "light[1].position": q["light1"],
+            "object[1].center": q["center"],
+            "object[1].radius": q["radius"],
+            "object[2].min": p["object[2].min"] + q["box"],
+            "object[2].max": p["object[2].max"] + q["box"],
+        },
+    )
     return jnp.mean(jnp.asarray(smooth_weights(FH, FW)) * rt.render(s, **kw))
 
 
@@ -162,8 +171,10 @@ def _occ_table():
 
 
 def _table_text(t):
-    return "\n".join(f"{n}[{c}]: FD {fd:+.5f}  edge {ge:+.5f} ({(ge - fd) / fd:+.1%})  plain {gp:+.5f} "
-                     f"({(gp - fd) / fd:+.1%})" for (n, c), (fd, ge, gp) in t.items())
+    return "\n".join(
+        f"{n}[{c}]: FD {fd:+.5f}  edge {ge:+.5f} ({(ge - fd) / fd:+.1%})  plain {gp:+.5f} ({(gp - fd) / fd:+.1%})"
+        for (n, c), (fd, ge, gp) in t.items()
+    )
 
 
 # Known miss at spp 256 (see docs/gradients.md): the sphere centre's x component is 3 % of the
@@ -183,8 +194,11 @@ def test_edge_gradients_match_finite_differences_where_plain_ad_does_not():
         assert worst > 0.2, f"plain AD unexpectedly close for {name}:\n{_table_text(t)}"
 
 
-@pytest.mark.xfail(reason="known miss at spp 256: the sphere centre's x (3 % of its largest component; "
-                          "-31 % at spp 4096); see docs/gradients.md", strict=False)
+@pytest.mark.xfail(
+    reason="known miss at spp 256: the sphere centre's x (3 % of its largest component; "
+    "-31 % at spp 4096); see docs/gradients.md",
+    strict=False,
+)
 def test_known_misses_within_5_percent():
     t = _occ_table()
     bad = [k for k in KNOWN if abs(t[k][1] - t[k][0]) > RTOL * abs(t[k][0])]
@@ -199,8 +213,9 @@ def test_probe_radiance_per_light_matches_renders_with_one_light_on():
     from raytrax.integrator import RenderOptions, _radiance_at
 
     for shading in ("classic", "physical"):
-        b = rt.SceneBuilder(shading, width=4, height=3, spp=1, max_depth=1, background=(0.3, 0.2, 0.1),
-                            ambient=(0.2, 0.25, 0.3))
+        b = rt.SceneBuilder(
+            shading, width=4, height=3, spp=1, max_depth=1, background=(0.3, 0.2, 0.1), ambient=(0.2, 0.25, 0.3)
+        )
         b.camera(position=(0, 1, 5), look_at=(0, 0.3, 0), fov=40)
         b.light((2, 4, 3), intensity=(9.0, 8.0, 7.0) if shading == "physical" else (0.7, 0.6, 0.5))
         b.light((-3, 3, 1), intensity=(4.0, 5.0, 6.0) if shading == "physical" else (0.3, 0.4, 0.5))
@@ -254,8 +269,7 @@ def test_sphere_centre_and_radius_over_a_textured_wall():
     (x, 6 % of the gradient's norm, was -3.2 % with the asymptotic silhouette
     correction, which a terminator just inside the silhouette breaks); plain AD is
     off by 79 % or more in every component (-174, +79, +121, +134 %)."""
-    s0 = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_sphere.toml"),
-                       dtype=jnp.float64)
+    s0 = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_sphere.toml"), dtype=jnp.float64)
     h, w_ = s0.settings.height, s0.settings.width
     assert (w_, h, s0.settings.spp) == (8, 6, EDGE_SPP)
     w = jnp.asarray(smooth_weights(h, w_))
@@ -267,13 +281,19 @@ def test_sphere_centre_and_radius_over_a_textured_wall():
         return jnp.mean(w * rt.render(s, **kw))
 
     f = jax.jit(lambda q, key: loss(q, spp=4096, key=key))
-    fd = np.array([[float((f(q0 + e, k) - f(q0 - e, k)) / (2 * SPHERE_STEP)) for e in SPHERE_STEP * jnp.eye(4)]
-                   for k in (jax.random.key(i) for i in range(SPHERE_KEYS))])
+    fd = np.array(
+        [
+            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * SPHERE_STEP)) for e in SPHERE_STEP * jnp.eye(4)]
+            for k in (jax.random.key(i) for i in range(SPHERE_KEYS))
+        ]
+    )
     ref, se = fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
     g_edge = np.asarray(jax.grad(lambda q: loss(q, edge_gradients=True))(q0))
     g_plain = np.asarray(jax.grad(loss)(q0))
-    text = (f"(centre x, y, z, radius)\nreference {ref} +- {se}\nedge {g_edge} ({(g_edge - ref) / np.abs(ref)})\n"
-            f"plain {g_plain} ({(g_plain - ref) / np.abs(ref)})")
+    text = (
+        f"(centre x, y, z, radius)\nreference {ref} +- {se}\nedge {g_edge} ({(g_edge - ref) / np.abs(ref)})\n"
+        f"plain {g_plain} ({(g_plain - ref) / np.abs(ref)})"
+    )
     print(text)  # shown with pytest -s
     assert np.all(se < 0.015 * np.abs(ref)), text  # the reference is known to 1.5 %
     assert np.all(np.abs(g_edge - ref) <= RTOL * np.abs(ref)), text
@@ -310,8 +330,9 @@ def specular_scene():
     b.triangle([(1.0, 0.2, 1.0), (1.5, 0.2, 1.0), (1.5, 0.5, 1.0)], "ball")
     s = b.build(jnp.float64)
     # The builder refuses a zero-area triangle; a fit can still make one: collapse it.
-    return rt.with_parameters(s, {"object[5].vertices": jnp.asarray([(1.0, 0.2, 1.0), (1.5, 0.2, 1.0),
-                                                                     (2.0, 0.2, 1.0)], jnp.float64)})
+    return rt.with_parameters(
+        s, {"object[5].vertices": jnp.asarray([(1.0, 0.2, 1.0), (1.5, 0.2, 1.0), (2.0, 0.2, 1.0)], jnp.float64)}
+    )
 
 
 def test_edges_seen_in_a_mirror_and_through_glass():
@@ -340,9 +361,12 @@ def test_edges_seen_in_a_mirror_and_through_glass():
         for c in range(v.shape[0]):
             e = jnp.zeros_like(v).at[c].set(steps[k]).reshape(jnp.shape(q0[k]))
             fd = float((ref(q0 | {k: q0[k] + e}) - ref(q0 | {k: q0[k] - e})) / (2 * steps[k]))
-            rows.append((f"{k}[{c}]", fd, float(jnp.atleast_1d(g_edge[name])[c]),
-                         float(jnp.atleast_1d(g_plain[name])[c])))
-    text = "\n".join(f"{n}: FD {fd:+.3e}  edge {ge:+.3e} ({(ge - fd) / fd:+.1%})  plain {gp:+.3e}" for n, fd, ge, gp in rows)
+            rows.append(
+                (f"{k}[{c}]", fd, float(jnp.atleast_1d(g_edge[name])[c]), float(jnp.atleast_1d(g_plain[name])[c]))
+            )
+    text = "\n".join(
+        f"{n}: FD {fd:+.3e}  edge {ge:+.3e} ({(ge - fd) / fd:+.1%})  plain {gp:+.3e}" for n, fd, ge, gp in rows
+    )
     print(text)  # shown with pytest -s
     # The reference moves by up to 13 % (the ball's x, 5e-5) between this step and half of it,
     # hence 15 %; plain AD is off by 70 % or more in every component, with the wrong sign for the ball.

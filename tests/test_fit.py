@@ -82,8 +82,7 @@ def test_clear_errors_before_any_compilation():
     with pytest.raises(ValueError, match="unknown parameter 'material.glass.iro'.*did you mean 'material.glass.ior'"):
         rt.fit(scene, target, ["material.glass.iro"], progress=False)
     with pytest.raises(ValueError, match="outside its bounds"):
-        rt.fit(scene, target, {"material.glass.ior": 1.2}, bounds={"material.glass.ior": (1.3, 2.0)},
-               progress=False)
+        rt.fit(scene, target, {"material.glass.ior": 1.2}, bounds={"material.glass.ior": (1.3, 2.0)}, progress=False)
     bad = target.copy()
     bad[0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
@@ -108,7 +107,9 @@ def test_selector_progress_and_step_budget(capsys):
     out = capsys.readouterr().out
     assert "step    0  loss" in out and "lights.position=" in out and "fit: converged" in out
     assert list(res.params) == ["lights.position"]
-    np.testing.assert_allclose(res.params["lights.position"], np.asarray(lights.TRUE_LIGHTS), atol=0.01 * lights.SCENE_SIZE)
+    np.testing.assert_allclose(
+        res.params["lights.position"], np.asarray(lights.TRUE_LIGHTS), atol=0.01 * lights.SCENE_SIZE
+    )
     with pytest.warns(RuntimeWarning, match="did not converge within max_steps=3"):
         short = rt.fit(start, target, lambda s: s.lights.position, max_steps=3, progress="bar", check=False)
     assert not short.converged and short.steps == 3

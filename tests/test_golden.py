@@ -39,7 +39,7 @@ def test_render_matches_golden(name):
 def test_gradient_matches_golden(name, edge):
     got = cases.gradient_case(name, edge)
     prefix = f"grad/{name}/{'edge' if edge else 'plain'}/"
-    want = {k[len(prefix):] for k in REF.files if k.startswith(prefix)}
+    want = {k[len(prefix) :] for k in REF.files if k.startswith(prefix)}
     assert set(got) == want, f"parameter names changed: {sorted(set(got) ^ want)}"
     for k, v in got.items():
         _close(v, REF[prefix + k], prefix + k)

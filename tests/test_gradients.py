@@ -50,15 +50,21 @@ def scene_g(shading):
     image-textured sphere, a rotated box, a tetrahedron, a triangle, a quad and a mesh.
     Refracted rays cross the glass sphere and land on the wall."""
     phys = shading == "physical"
-    b = rt.SceneBuilder(shading, width=W, height=H, spp=1, max_depth=2,
-                        background=(0.3, 0.35, 0.4), ambient=(0.2, 0.2, 0.2))
+    b = rt.SceneBuilder(
+        shading, width=W, height=H, spp=1, max_depth=2, background=(0.3, 0.35, 0.4), ambient=(0.2, 0.2, 0.2)
+    )
     b.camera(position=(0, 0.3, 5), look_at=(0, 0, 0), fov=50)
     b.light((3, 4, 4), intensity=(40, 40, 40) if phys else (0.7, 0.7, 0.7))
     b.light((-3, 3, 2), intensity=(20, 15, 10) if phys else (0.4, 0.3, 0.2))
     texels = np.random.default_rng(0).uniform(0.2, 1.0, (4, 4, 3))
     b.material("wall", color=(0.9, 0.8, 0.7), texture=rt.Checker(color2=(0.1, 0.2, 0.3), scale=1.5))
-    b.material("floor", color=(0.6, 0.7, 0.6), specular=0.3, shininess=8,
-               texture=rt.Stripes(color2=(0.2, 0.1, 0.1), scale=1.0, direction=(1.0, 0.5)))
+    b.material(
+        "floor",
+        color=(0.6, 0.7, 0.6),
+        specular=0.3,
+        shininess=8,
+        texture=rt.Stripes(color2=(0.2, 0.1, 0.1), scale=1.0, direction=(1.0, 0.5)),
+    )
     if phys:
         b.material("glass", color=(0.02, 0.02, 0.02), transparency=0.95, ior=1.5, reflectivity=0.02)
     else:
@@ -76,8 +82,11 @@ def scene_g(shading):
     b.tetrahedron((2.0, 1.4, -1.8), 1.2, "blue")
     b.triangle([(-0.8, 1.3, -2.0), (0.8, 1.2, -2.2), (0.0, 2.3, -2.1)], "blue")
     b.quad([(-3.0, -1.2, 0.8), (-2.0, -1.2, 1.2), (-2.0, -0.3, 1.2), (-3.0, -0.3, 0.8)], "red")
-    b.mesh([(1.2, -1.2, 1.0), (2.0, -1.2, 1.4), (1.6, -0.4, 1.2), (1.4, -1.2, 1.8)],
-           [(0, 1, 2), (1, 3, 2), (3, 0, 2)], "red")
+    b.mesh(
+        [(1.2, -1.2, 1.0), (2.0, -1.2, 1.4), (1.6, -0.4, 1.2), (1.4, -1.2, 1.8)],
+        [(0, 1, 2), (1, 3, 2), (3, 0, 2)],
+        "red",
+    )
     return b.build(jnp.float64)
 
 
@@ -104,7 +113,7 @@ def interior(p, names=None):
     """``{name: components}`` of ``names`` (default all), leaving out transparency and
     reflectivity components that sit at 0 (the edge of their domain)."""
     out = {}
-    for k in (names or p):
+    for k in names or p:
         v = np.asarray(p[k]).reshape(-1)
         if k.endswith((".transparency", ".reflectivity")):
             comps = [i for i in range(v.size) if v[i] != 0.0]
@@ -145,24 +154,46 @@ def test_gradient_matrix(shading):
     s, p, target = setup_g(shading)
     loss = image_loss(s, target)
     names = interior(p)
-    rep = check_gradients(loss, p, names=names, rtol=RTOL, rel_step=REL_STEP,
-                          forward_mode=shading == "classic")
+    rep = check_gradients(loss, p, names=names, rtol=RTOL, rel_step=REL_STEP, forward_mode=shading == "classic")
     # Every kind of parameter has a real (non-zero) derivative here, so the check is not vacuous.
     gmax = max(abs(r.fd) for r in rep.rows)
-    for name in ["camera.position", "camera.look_at", "camera.fov", "light[0].position", "light[1].position",
-                 "light[0].intensity", "light[1].intensity", "material.wall.color", "material.floor.color",
-                 "material.glass.ior", "material.glass.transparency", "material.mirror.reflectivity",
-                 "material.wall.texture.color2", "material.wall.texture.scale", "material.floor.texture.direction",
-                 "material.planet.texture.image", f"object[{WALL}].point", f"object[{FLOOR}].normal",
-                 f"object[{GLASS}].center", f"object[{GLASS}].radius", f"object[{MIRROR}].center",
-                 f"object[{PLANET}].radius", "render.background", f"object[{BOX}].min", f"object[{BOX}].max",
-                 f"object[{BOX}].rotation", f"object[{TETRA}].center", f"object[{TETRA}].size",
-                 f"object[{TRI}].vertices", f"object[{QUAD}].corners", f"object[{MESH}].vertices",
-                 "material.red.reflectivity"]:
+    for name in [
+        "camera.position",
+        "camera.look_at",
+        "camera.fov",
+        "light[0].position",
+        "light[1].position",
+        "light[0].intensity",
+        "light[1].intensity",
+        "material.wall.color",
+        "material.floor.color",
+        "material.glass.ior",
+        "material.glass.transparency",
+        "material.mirror.reflectivity",
+        "material.wall.texture.color2",
+        "material.wall.texture.scale",
+        "material.floor.texture.direction",
+        "material.planet.texture.image",
+        f"object[{WALL}].point",
+        f"object[{FLOOR}].normal",
+        f"object[{GLASS}].center",
+        f"object[{GLASS}].radius",
+        f"object[{MIRROR}].center",
+        f"object[{PLANET}].radius",
+        "render.background",
+        f"object[{BOX}].min",
+        f"object[{BOX}].max",
+        f"object[{BOX}].rotation",
+        f"object[{TETRA}].center",
+        f"object[{TETRA}].size",
+        f"object[{TRI}].vertices",
+        f"object[{QUAD}].corners",
+        f"object[{MESH}].vertices",
+        "material.red.reflectivity",
+    ]:
         assert max(abs(r.fd) for r in rows(rep, name)) > 1e-4 * gmax, name
     if shading == "classic":
-        for name in ["material.floor.specular", "material.floor.diffuse", "material.planet.ambient",
-                     "render.ambient"]:
+        for name in ["material.floor.specular", "material.floor.diffuse", "material.planet.ambient", "render.ambient"]:
             assert max(abs(r.fd) for r in rows(rep, name)) > 1e-5 * gmax, name
 
 
@@ -178,9 +209,14 @@ def test_refraction_ior_onto_filtered_texture(shading):
     other = render64(rt.with_parameters(s, {"material.wall.texture.color2": (0.9, 0.0, 0.9)}))
     assert np.all(np.abs(np.asarray(other) - np.asarray(render64(s))).max(-1)[mask[..., 0] > 0] > 1e-3)
     loss = image_loss(s, target, weights=mask)
-    rep = check_gradients(loss, p, names=["material.glass.ior", "material.wall.texture.scale",
-                                          f"object[{GLASS}].center"],
-                          rtol=RTOL, rel_step=REL_STEP, forward_mode=False)
+    rep = check_gradients(
+        loss,
+        p,
+        names=["material.glass.ior", "material.wall.texture.scale", f"object[{GLASS}].center"],
+        rtol=RTOL,
+        rel_step=REL_STEP,
+        forward_mode=False,
+    )
     (ior,) = rows(rep, "material.glass.ior")
     assert abs(ior.fd) > 1e-4
     assert abs(ior.rev - ior.fd) <= RTOL * abs(ior.fd)
@@ -191,14 +227,25 @@ def test_mirror_reflection():
     mask = sphere_mask(s, MIRROR)
     assert mask.sum() >= 3
     loss = image_loss(s, target, weights=mask)
-    names = interior(p, ["material.mirror.reflectivity", f"object[{MIRROR}].center", f"object[{MIRROR}].radius",
-                         "material.wall.texture.color2", "material.floor.texture.color2", "light[0].position"])
+    names = interior(
+        p,
+        [
+            "material.mirror.reflectivity",
+            f"object[{MIRROR}].center",
+            f"object[{MIRROR}].radius",
+            "material.wall.texture.color2",
+            "material.floor.texture.color2",
+            "light[0].position",
+        ],
+    )
     rep = check_gradients(loss, p, names=names, rtol=RTOL, rel_step=REL_STEP, forward_mode=False)
     # The reflection carries the wall's / floor's texture and the mirror's geometry.
     assert max(abs(r.fd) for r in rows(rep, "material.mirror.reflectivity")) > 1e-4
     assert max(abs(r.fd) for r in rows(rep, f"object[{MIRROR}].center")) > 1e-4
-    assert max(abs(r.fd) for r in rows(rep, "material.floor.texture.color2")
-               + rows(rep, "material.wall.texture.color2")) > 1e-5
+    assert (
+        max(abs(r.fd) for r in rows(rep, "material.floor.texture.color2") + rows(rep, "material.wall.texture.color2"))
+        > 1e-5
+    )
 
 
 def test_both_lights_of_a_two_light_scene():
@@ -214,8 +261,14 @@ def test_textured_sphere_texels():
     s, p, target = setup_g("classic")
     mask = sphere_mask(s, PLANET)
     loss = image_loss(s, target, weights=mask)
-    rep = check_gradients(loss, p, names=["material.planet.texture.image", "material.planet.color"],
-                          rtol=RTOL, rel_step=REL_STEP, forward_mode=False)
+    rep = check_gradients(
+        loss,
+        p,
+        names=["material.planet.texture.image", "material.planet.color"],
+        rtol=RTOL,
+        rel_step=REL_STEP,
+        forward_mode=False,
+    )
     texel_rows = rows(rep, "material.planet.texture.image")
     assert len(texel_rows) == 48
     assert sum(abs(r.fd) > 1e-6 for r in texel_rows) >= 12  # the visible half of the texels
@@ -236,7 +289,8 @@ def test_derivative_at_zero_transparency_is_one_sided():
             pytest.xfail(
                 f"{name} at 0: AD {ad:.6g} vs one-sided difference {right:.6g}: the refracted "
                 "branch of zero weight is dropped by the branch selection, so its contribution "
-                "to the derivative is lost (known limitation, docs/gradients.md)")
+                "to the derivative is lost (known limitation, docs/gradients.md)"
+            )
 
 
 def test_forward_mode_in_degenerate_cases():
@@ -257,17 +311,31 @@ def test_forward_mode_in_degenerate_cases():
     k1, k2 = 6 * W + 7, 4 * W + 11
     glass_c = np.asarray(p[f"object[{GLASS}].center"])
     cases = {
-        "ray in a plane": {f"object[{FLOOR}].point": o[k1], f"object[{FLOOR}].normal":
-                           np.cross(d[k1], [0.3, 1.0, 0.2]) / np.linalg.norm(np.cross(d[k1], [0.3, 1.0, 0.2]))},
-        "tangent ray": {f"object[{MIRROR}].center": o[k2] + 3.0 * d[k2] + 0.7 * np.cross(d[k2], [0, 1, 0])
-                        / np.linalg.norm(np.cross(d[k2], [0, 1, 0])), f"object[{MIRROR}].radius": 0.7},
-        "total internal reflection": {"camera.position": glass_c + [0.0, 0.1, 0.75],
-                                      "camera.look_at": glass_c + [3.0, 0.3, 0.75], "material.glass.ior": 2.4},
-        "lights inside objects": {"light[0].position": glass_c,
-                                  "light[1].position": np.asarray(p[f"object[{TETRA}].center"])},
+        "ray in a plane": {
+            f"object[{FLOOR}].point": o[k1],
+            f"object[{FLOOR}].normal": np.cross(d[k1], [0.3, 1.0, 0.2])
+            / np.linalg.norm(np.cross(d[k1], [0.3, 1.0, 0.2])),
+        },
+        "tangent ray": {
+            f"object[{MIRROR}].center": o[k2]
+            + 3.0 * d[k2]
+            + 0.7 * np.cross(d[k2], [0, 1, 0]) / np.linalg.norm(np.cross(d[k2], [0, 1, 0])),
+            f"object[{MIRROR}].radius": 0.7,
+        },
+        "total internal reflection": {
+            "camera.position": glass_c + [0.0, 0.1, 0.75],
+            "camera.look_at": glass_c + [3.0, 0.3, 0.75],
+            "material.glass.ior": 2.4,
+        },
+        "lights inside objects": {
+            "light[0].position": glass_c,
+            "light[1].position": np.asarray(p[f"object[{TETRA}].center"]),
+        },
         "zero ray directions": {"camera.look_at": np.asarray(p["camera.position"])},
-        "degenerate triangle and box": {f"object[{TRI}].vertices": np.zeros((3, 3)),
-                                        f"object[{BOX}].max": np.asarray(p[f"object[{BOX}].min"])},
+        "degenerate triangle and box": {
+            f"object[{TRI}].vertices": np.zeros((3, 3)),
+            f"object[{BOX}].max": np.asarray(p[f"object[{BOX}].min"]),
+        },
     }
     rng = np.random.default_rng(3)
     t = {k: jnp.asarray(rng.normal(size=np.shape(v))) for k, v in p.items()}

@@ -100,8 +100,11 @@ def test_jax_array_input(tmp_path):
 
 
 def test_errors(tmp_path, img):
-    with pytest.raises(io.ImageError, match=r"x\.bmp: cannot write images of type '\.bmp'; expected one of "
-                                            r"\.exr, \.png, \.jpg, \.jpeg"):
+    with pytest.raises(
+        io.ImageError,
+        match=r"x\.bmp: cannot write images of type '\.bmp'; expected one of "
+        r"\.exr, \.png, \.jpg, \.jpeg",
+    ):
         io.save_image(tmp_path / "x.bmp", img)
     with pytest.raises(io.ImageError, match=r"cannot write images of type '\(no extension\)'"):
         io.save_image(tmp_path / "noext", img)

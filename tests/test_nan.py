@@ -118,8 +118,15 @@ def test_ray_tangent_to_a_sphere(which):
     e = unit(np.cross(d, [0.0, 1.0, 0.0]))
     o2, d2 = pixel_ray(which, 7, 4)
     e2 = unit(np.cross(d2, [0.2, 1.0, 0.0]))
-    check_finite(which, {f"object[{MIRROR}].center": o + 3.0 * d + 0.7 * e, f"object[{MIRROR}].radius": 0.7,
-                         f"object[{GLASS}].center": o2 + 3.0 * d2 + 0.5 * e2, f"object[{GLASS}].radius": 0.5})
+    check_finite(
+        which,
+        {
+            f"object[{MIRROR}].center": o + 3.0 * d + 0.7 * e,
+            f"object[{MIRROR}].radius": 0.7,
+            f"object[{GLASS}].center": o2 + 3.0 * d2 + 0.5 * e2,
+            f"object[{GLASS}].radius": 0.5,
+        },
+    )
 
 
 @pytest.mark.parametrize("which", BOTH)
@@ -132,11 +139,16 @@ def test_rays_through_vertices_edges_and_corners(which):
     q2 = o2 + 3.0 * d2
     o3, d3 = pixel_ray(which, 2, 2)
     c = o3 + 3.0 * d3
-    check_finite(which, {f"object[{TRI}].vertices": np.array([q, q + [1.0, 0.0, 0.0], q + [0.0, 1.0, 0.0]]),
-                         f"object[{MESH}].vertices": np.array([q2, q2 + 1.5 * d2, q2 + [0.0, 1.0, 0.0],
-                                                               q2 + [1.0, 0.0, 0.3]]),
-                         f"object[{BOX}].min": c - 0.5, f"object[{BOX}].max": c,
-                         f"object[{BOX}].rotation": 0.0})
+    check_finite(
+        which,
+        {
+            f"object[{TRI}].vertices": np.array([q, q + [1.0, 0.0, 0.0], q + [0.0, 1.0, 0.0]]),
+            f"object[{MESH}].vertices": np.array([q2, q2 + 1.5 * d2, q2 + [0.0, 1.0, 0.0], q2 + [1.0, 0.0, 0.3]]),
+            f"object[{BOX}].min": c - 0.5,
+            f"object[{BOX}].max": c,
+            f"object[{BOX}].rotation": 0.0,
+        },
+    )
 
 
 @pytest.mark.parametrize("which", BOTH)
@@ -148,8 +160,14 @@ def test_ray_inside_a_box_face(which):
     ax = np.array([np.cos(theta), 0.0, -np.sin(theta)])
     h = 0.4
     c = o + 3.0 * d - h * ax  # the face x_local = +h contains the ray
-    check_finite(which, {f"object[{BOX}].min": c - h, f"object[{BOX}].max": c + h,
-                         f"object[{BOX}].rotation": (0.0, np.degrees(theta), 0.0)})
+    check_finite(
+        which,
+        {
+            f"object[{BOX}].min": c - h,
+            f"object[{BOX}].max": c + h,
+            f"object[{BOX}].rotation": (0.0, np.degrees(theta), 0.0),
+        },
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -176,7 +194,7 @@ def test_critical_angle_from_inside_a_sphere(which):
     o, d = pixel_ray(which, 3, 6, cam)
     oc = o - c
     b = d @ oc
-    t = -b + np.sqrt(b * b - (oc @ oc - 0.9 ** 2))
+    t = -b + np.sqrt(b * b - (oc @ oc - 0.9**2))
     n = (o + t * d - c) / 0.9
     ior = 1.0 / np.linalg.norm(np.cross(d, n))  # exactly critical for this ray
     assert 1.0 < ior < 3.0
@@ -190,9 +208,13 @@ def test_critical_angle_in_a_glass_box(which):
     o, d = pixel_ray(which, 10, 8)
     y_top = -0.5
     q = o + (y_top - o[1]) / d[1] * d
-    box = {f"object[{BOX}].min": [q[0] - 1.0, y_top - 3.0, q[2] - 0.3],
-           f"object[{BOX}].max": [q[0] + 1.0, y_top, q[2] + 1.0], f"object[{BOX}].rotation": 0.0,
-           "material.red.transparency": 1.0, "material.red.reflectivity": 0.0}
+    box = {
+        f"object[{BOX}].min": [q[0] - 1.0, y_top - 3.0, q[2] - 0.3],
+        f"object[{BOX}].max": [q[0] + 1.0, y_top, q[2] + 1.0],
+        f"object[{BOX}].rotation": 0.0,
+        "material.red.transparency": 1.0,
+        "material.red.reflectivity": 0.0,
+    }
     check_finite(which, {**box, "material.red.ior": np.sqrt(1.0 + d[2] ** 2)})
     check_finite(which, {**box, "material.red.ior": 2.0})
 
@@ -201,9 +223,17 @@ def test_critical_angle_in_a_glass_box(which):
 def test_ior_one_and_pure_materials(which):
     # ior = 1 (no bending, F = 0), a fully transparent and a fully reflective material,
     # shininess 0.
-    check_finite(which, {"material.glass.ior": 1.0, "material.glass.transparency": 1.0,
-                         "material.glass.reflectivity": 0.0, "material.mirror.reflectivity": 1.0,
-                         "material.mirror.shininess": 0.0, "material.planet.shininess": 0.0})
+    check_finite(
+        which,
+        {
+            "material.glass.ior": 1.0,
+            "material.glass.transparency": 1.0,
+            "material.glass.reflectivity": 0.0,
+            "material.mirror.reflectivity": 1.0,
+            "material.mirror.shininess": 0.0,
+            "material.planet.shininess": 0.0,
+        },
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -237,15 +267,15 @@ def test_light_inside_objects_and_on_surfaces(which):
 def test_degenerate_triangles_quads_boxes_tetrahedra(which):
     v = np.asarray(_fns(which)[1][f"object[{TRI}].vertices"], np.float64)
     cases = [
-        {f"object[{TRI}].vertices": np.repeat(v[:1], 3, 0)},                       # a point
-        {f"object[{TRI}].vertices": np.array([v[0], v[1], 2 * v[1] - v[0]])},       # collinear
-        {f"object[{MESH}].vertices": np.zeros((4, 3))},                             # every face a point
-        {f"object[{QUAD}].corners": np.zeros((4, 3))},                              # zero quad
+        {f"object[{TRI}].vertices": np.repeat(v[:1], 3, 0)},  # a point
+        {f"object[{TRI}].vertices": np.array([v[0], v[1], 2 * v[1] - v[0]])},  # collinear
+        {f"object[{MESH}].vertices": np.zeros((4, 3))},  # every face a point
+        {f"object[{QUAD}].corners": np.zeros((4, 3))},  # zero quad
         {f"object[{QUAD}].corners": np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.0]])},  # a segment
         {f"object[{QUAD}].corners": np.array([[-1, -1, 0], [1, -1, 0.5], [1, 1, 0], [-1, 1, 0.5]])},  # not planar
         {f"object[{TETRA}].size": 0.0},
-        {f"object[{BOX}].min": (0.0, 0.0, 0.0), f"object[{BOX}].max": (0.0, 0.0, 0.0)},        # a point
-        {f"object[{BOX}].min": (0.5, -1.0, -1.0), f"object[{BOX}].max": (-0.5, 0.0, 0.0)},     # inverted
+        {f"object[{BOX}].min": (0.0, 0.0, 0.0), f"object[{BOX}].max": (0.0, 0.0, 0.0)},  # a point
+        {f"object[{BOX}].min": (0.5, -1.0, -1.0), f"object[{BOX}].max": (-0.5, 0.0, 0.0)},  # inverted
     ]
     for case in cases:
         check_finite(which, case)
@@ -253,18 +283,31 @@ def test_degenerate_triangles_quads_boxes_tetrahedra(which):
 
 @pytest.mark.parametrize("which", BOTH)
 def test_zero_vectors_and_degenerate_spheres(which):
-    check_finite(which, {f"object[{WALL}].normal": 0.0, f"object[{FLOOR}].normal": 0.0,
-                         f"object[{GLASS}].radius": 0.0, f"object[{MIRROR}].radius": -0.5})
+    check_finite(
+        which,
+        {
+            f"object[{WALL}].normal": 0.0,
+            f"object[{FLOOR}].normal": 0.0,
+            f"object[{GLASS}].radius": 0.0,
+            f"object[{MIRROR}].radius": -0.5,
+        },
+    )
     # Stripes with a zero direction, texture scale 0, an all-zero image.
-    check_finite(which, {"material.floor.texture.direction": 0.0, "material.wall.texture.scale": 0.0,
-                         "material.planet.texture.image": np.zeros((4, 4, 3))})
+    check_finite(
+        which,
+        {
+            "material.floor.texture.direction": 0.0,
+            "material.wall.texture.scale": 0.0,
+            "material.planet.texture.image": np.zeros((4, 4, 3)),
+        },
+    )
 
 
 @pytest.mark.parametrize("which", BOTH)
 def test_degenerate_cameras(which):
     cases = [
-        {"camera.up": 0.0},                                                        # zero up vector
-        {"camera.up": (0.0, -0.3, -5.0)},                                          # up parallel to the view
+        {"camera.up": 0.0},  # zero up vector
+        {"camera.up": (0.0, -0.3, -5.0)},  # up parallel to the view
         {"camera.look_at": (0.0, 0.3, 5.0), "camera.position": (0.0, 0.3, 5.0)},  # every ray direction zero
         {"camera.fov": 1e-3},
         {"camera.fov": 179.0},
@@ -277,8 +320,13 @@ def test_degenerate_cameras(which):
 # Property tests: random parameters of the same scenes.
 # ---------------------------------------------------------------------------
 
-PROPS = settings(max_examples=12, deadline=None, derandomize=True, database=None,
-                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+PROPS = settings(
+    max_examples=12,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 
 
 def num(lo, hi, special=()):
@@ -292,34 +340,37 @@ def vec(lo, hi, n=3, special=()):
 
 def random_params(shading):
     big = 50.0 if shading == "physical" else 1.5
-    return st.fixed_dictionaries({}, optional={
-        "camera.position": vec(-5, 5),
-        "camera.look_at": vec(-2, 2),
-        "camera.fov": num(1, 170),
-        "light[0].position": vec(-4, 4, special=(0.0,)),
-        "light[1].position": vec(-4, 4, special=(0.0,)),
-        "light[0].intensity": vec(0, big, special=(0.0,)),
-        "material.glass.ior": num(1, 3, special=(1.0,)),
-        "material.glass.transparency": num(0, 1, special=(0.0, 1.0)),
-        "material.mirror.reflectivity": vec(0, 1, special=(0.0, 1.0)),
-        "material.red.transparency": num(0, 1, special=(0.0, 1.0)),
-        "material.red.ior": num(1, 3, special=(1.0,)),
-        "material.planet.shininess": num(0, 100, special=(0.0,)),
-        "material.wall.texture.scale": num(0, 10, special=(0.0,)),
-        f"object[{GLASS}].center": vec(-2, 2),
-        f"object[{GLASS}].radius": num(0, 2, special=(0.0,)),
-        f"object[{MIRROR}].center": vec(-2, 2),
-        f"object[{PLANET}].radius": num(0, 2, special=(0.0,)),
-        f"object[{FLOOR}].normal": vec(-1, 1, special=(0.0,)),
-        f"object[{BOX}].min": vec(-2, 1, special=(0.0,)),
-        f"object[{BOX}].max": vec(-1, 2, special=(0.0,)),
-        f"object[{BOX}].rotation": vec(-180, 180, special=(0.0, 90.0)),
-        f"object[{TETRA}].center": vec(-2, 2),
-        f"object[{TETRA}].size": num(0, 2, special=(0.0,)),
-        f"object[{TRI}].vertices": st.lists(vec(-2, 2, special=(0.0,)), min_size=3, max_size=3),
-        f"object[{QUAD}].corners": st.lists(vec(-2, 2, special=(0.0,)), min_size=4, max_size=4),
-        f"object[{MESH}].vertices": st.lists(vec(-2, 2, special=(0.0,)), min_size=4, max_size=4),
-    })
+    return st.fixed_dictionaries(
+        {},
+        optional={
+            "camera.position": vec(-5, 5),
+            "camera.look_at": vec(-2, 2),
+            "camera.fov": num(1, 170),
+            "light[0].position": vec(-4, 4, special=(0.0,)),
+            "light[1].position": vec(-4, 4, special=(0.0,)),
+            "light[0].intensity": vec(0, big, special=(0.0,)),
+            "material.glass.ior": num(1, 3, special=(1.0,)),
+            "material.glass.transparency": num(0, 1, special=(0.0, 1.0)),
+            "material.mirror.reflectivity": vec(0, 1, special=(0.0, 1.0)),
+            "material.red.transparency": num(0, 1, special=(0.0, 1.0)),
+            "material.red.ior": num(1, 3, special=(1.0,)),
+            "material.planet.shininess": num(0, 100, special=(0.0,)),
+            "material.wall.texture.scale": num(0, 10, special=(0.0,)),
+            f"object[{GLASS}].center": vec(-2, 2),
+            f"object[{GLASS}].radius": num(0, 2, special=(0.0,)),
+            f"object[{MIRROR}].center": vec(-2, 2),
+            f"object[{PLANET}].radius": num(0, 2, special=(0.0,)),
+            f"object[{FLOOR}].normal": vec(-1, 1, special=(0.0,)),
+            f"object[{BOX}].min": vec(-2, 1, special=(0.0,)),
+            f"object[{BOX}].max": vec(-1, 2, special=(0.0,)),
+            f"object[{BOX}].rotation": vec(-180, 180, special=(0.0, 90.0)),
+            f"object[{TETRA}].center": vec(-2, 2),
+            f"object[{TETRA}].size": num(0, 2, special=(0.0,)),
+            f"object[{TRI}].vertices": st.lists(vec(-2, 2, special=(0.0,)), min_size=3, max_size=3),
+            f"object[{QUAD}].corners": st.lists(vec(-2, 2, special=(0.0,)), min_size=4, max_size=4),
+            f"object[{MESH}].vertices": st.lists(vec(-2, 2, special=(0.0,)), min_size=4, max_size=4),
+        },
+    )
 
 
 @pytest.mark.parametrize("shading", BOTH)

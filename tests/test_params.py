@@ -22,13 +22,13 @@ def every_kind_scene(dtype=jnp.float32):
     b.material("glass", color=(0, 0, 0), transparency=1.0, ior=1.5)
     b.material("striped", texture=rt.Stripes(color2=(0, 1, 0), scale=3.0, direction=(1.0, 0.0)))
     b.material("planet", texture=rt.ImageTexture(np.full((2, 3, 3), 0.5)))
-    b.plane((0, -1, 0), (0, 1, 0), "floor")                                       # object[0]
-    b.sphere((0, 0, 0), 1.0, "glass")                                              # object[1]
-    b.box((-1, -1, -1), (0, 0, 0), "striped", rotation=(0, 30, 0))                 # object[2]
-    b.sphere((2, 0, 0), 0.5, "planet")                                             # object[3]
-    b.tetrahedron((0, 2, 0), 1.0, "striped")                                       # object[4]
-    b.triangle([(0, 0, 0), (1, 0, 0), (0, 1, 0)], "floor")                         # object[5]
-    b.quad([(0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], "floor")                  # object[6]
+    b.plane((0, -1, 0), (0, 1, 0), "floor")  # object[0]
+    b.sphere((0, 0, 0), 1.0, "glass")  # object[1]
+    b.box((-1, -1, -1), (0, 0, 0), "striped", rotation=(0, 30, 0))  # object[2]
+    b.sphere((2, 0, 0), 0.5, "planet")  # object[3]
+    b.tetrahedron((0, 2, 0), 1.0, "striped")  # object[4]
+    b.triangle([(0, 0, 0), (1, 0, 0), (0, 1, 0)], "floor")  # object[5]
+    b.quad([(0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], "floor")  # object[6]
     b.mesh([(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)], [(0, 1, 2), (0, 2, 3)], "glass")  # object[7]
     return b.build(dtype)
 
@@ -41,22 +41,36 @@ MATERIAL_FIELDS = ["color", "ambient", "diffuse", "specular", "shininess", "refl
 def test_names_and_shapes():
     p = rt.parameters(SCENE)
     expected = {
-        "camera.position": (3,), "camera.look_at": (3,), "camera.up": (3,), "camera.fov": (),
-        "light[0].position": (3,), "light[0].intensity": (3,),
-        "light[1].position": (3,), "light[1].intensity": (3,),
-        "material.floor.texture.color2": (3,), "material.floor.texture.scale": (),
-        "material.striped.texture.color2": (3,), "material.striped.texture.scale": (),
+        "camera.position": (3,),
+        "camera.look_at": (3,),
+        "camera.up": (3,),
+        "camera.fov": (),
+        "light[0].position": (3,),
+        "light[0].intensity": (3,),
+        "light[1].position": (3,),
+        "light[1].intensity": (3,),
+        "material.floor.texture.color2": (3,),
+        "material.floor.texture.scale": (),
+        "material.striped.texture.color2": (3,),
+        "material.striped.texture.scale": (),
         "material.striped.texture.direction": (2,),
         "material.planet.texture.image": (2, 3, 3),
-        "object[0].point": (3,), "object[0].normal": (3,),
-        "object[1].center": (3,), "object[1].radius": (),
-        "object[2].min": (3,), "object[2].max": (3,), "object[2].rotation": (3,),
-        "object[3].center": (3,), "object[3].radius": (),
-        "object[4].center": (3,), "object[4].size": (),
+        "object[0].point": (3,),
+        "object[0].normal": (3,),
+        "object[1].center": (3,),
+        "object[1].radius": (),
+        "object[2].min": (3,),
+        "object[2].max": (3,),
+        "object[2].rotation": (3,),
+        "object[3].center": (3,),
+        "object[3].radius": (),
+        "object[4].center": (3,),
+        "object[4].size": (),
         "object[5].vertices": (3, 3),
         "object[6].corners": (4, 3),
         "object[7].vertices": (4, 3),
-        "render.background": (3,), "render.ambient": (3,),
+        "render.background": (3,),
+        "render.ambient": (3,),
     }
     for m in ("floor", "glass", "striped", "planet"):
         for f in MATERIAL_FIELDS:
@@ -92,9 +106,16 @@ def test_round_trip_is_identity():
 
 
 def test_replace_changes_only_that_leaf():
-    s2 = rt.with_parameters(SCENE, {"object[3].radius": 0.25, "object[1].center": [0.0, 0.5, 0.0],
-                                    "light[1].position": (9.0, 9.0, 9.0), "material.planet.texture.image":
-                                    np.zeros((2, 3, 3)), "object[6].corners": np.ones((4, 3))})
+    s2 = rt.with_parameters(
+        SCENE,
+        {
+            "object[3].radius": 0.25,
+            "object[1].center": [0.0, 0.5, 0.0],
+            "light[1].position": (9.0, 9.0, 9.0),
+            "material.planet.texture.image": np.zeros((2, 3, 3)),
+            "object[6].corners": np.ones((4, 3)),
+        },
+    )
     np.testing.assert_allclose(s2.spheres.radius, [1.0, 0.25])
     np.testing.assert_allclose(s2.spheres.center, [[0, 0.5, 0], [2, 0, 0]])
     np.testing.assert_allclose(s2.lights.position[1], [9, 9, 9])
@@ -103,8 +124,13 @@ def test_replace_changes_only_that_leaf():
     np.testing.assert_allclose(s2.quads.corners[0], 1.0)
     p1, p2 = rt.parameters(SCENE), rt.parameters(s2)
     changed = {k for k in p1 if not np.array_equal(p1[k], p2[k])}
-    assert changed == {"object[3].radius", "object[1].center", "light[1].position",
-                       "material.planet.texture.image", "object[6].corners"}
+    assert changed == {
+        "object[3].radius",
+        "object[1].center",
+        "light[1].position",
+        "material.planet.texture.image",
+        "object[6].corners",
+    }
     assert s2.materials.images[0].dtype == jnp.float32  # cast to the leaf's dtype
 
 
@@ -115,7 +141,9 @@ def test_rgb_accepts_a_scalar():
 
 
 def test_unknown_name_lists_near_matches():
-    with pytest.raises(ValueError, match=r"unknown parameter 'material\.glas\.ior'.*did you mean 'material\.glass\.ior'"):
+    with pytest.raises(
+        ValueError, match=r"unknown parameter 'material\.glas\.ior'.*did you mean 'material\.glass\.ior'"
+    ):
         rt.with_parameters(SCENE, {"material.glas.ior": 1.4})
     with pytest.raises(ValueError, match=r"unknown parameter 'object\[1\]\.radious'.*'object\[1\]\.radius'"):
         rt.with_parameters(SCENE, {"object[1].radious": 1.4})
@@ -131,7 +159,9 @@ def test_unknown_name_lists_near_matches():
 def test_wrong_shape_is_a_clear_error():
     with pytest.raises(ValueError, match=r"'object\[1\]\.center': expected shape \(3,\), got \(2,\)"):
         rt.with_parameters(SCENE, {"object[1].center": [1.0, 2.0]})
-    with pytest.raises(ValueError, match=r"'material\.planet\.texture\.image': expected shape \(2, 3, 3\), got \(3, 3, 3\)"):
+    with pytest.raises(
+        ValueError, match=r"'material\.planet\.texture\.image': expected shape \(2, 3, 3\), got \(3, 3, 3\)"
+    ):
         rt.with_parameters(SCENE, {"material.planet.texture.image": np.zeros((3, 3, 3))})
     with pytest.raises(ValueError, match=r"'camera\.fov': expected shape \(\), got \(1,\)"):
         rt.with_parameters(SCENE, {"camera.fov": [30.0]})
@@ -156,13 +186,16 @@ def test_under_jit_grad_jacfwd_vmap():
     np.testing.assert_allclose(jax.jacrev(pos)(jnp.zeros(3, jnp.float32)), 2.0 * np.eye(3))
 
     batch = jax.vmap(lambda v: rt.with_parameters(SCENE, {"light[0].intensity": v}).lights.intensity)(
-        jnp.arange(6, dtype=jnp.float32).reshape(2, 3))
+        jnp.arange(6, dtype=jnp.float32).reshape(2, 3)
+    )
     assert batch.shape == (2, 2, 3)
     np.testing.assert_allclose(batch[1, 0], [3, 4, 5])
     np.testing.assert_allclose(batch[:, 1], 1.0)
 
     # Gradients of a function of the whole scene reach the leaf a name points at.
-    g = eqx.filter_grad(lambda s: jnp.sum(rt.parameters(s)["object[2].max"] * jnp.arange(3.0, dtype=jnp.float32)))(SCENE)
+    g = eqx.filter_grad(lambda s: jnp.sum(rt.parameters(s)["object[2].max"] * jnp.arange(3.0, dtype=jnp.float32)))(
+        SCENE
+    )
     np.testing.assert_allclose(g.boxes.hi, [[0, 1, 2]])
     np.testing.assert_allclose(g.boxes.lo, 0.0)
 

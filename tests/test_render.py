@@ -72,7 +72,12 @@ def mirror_reference(max_depth):
     else:
         seen = np.where(wall[:, None], L_wall, MI_R2 * MI_BG)  # one more specular hit: background
     img = np.where(on_mirror[:, None], MI_R1 * seen, MI_BG)
-    return img.reshape(MI_H, MI_W, 3), ~ambiguous.reshape(MI_H, MI_W), on_mirror.reshape(MI_H, MI_W), wall.reshape(MI_H, MI_W)
+    return (
+        img.reshape(MI_H, MI_W, 3),
+        ~ambiguous.reshape(MI_H, MI_W),
+        on_mirror.reshape(MI_H, MI_W),
+        wall.reshape(MI_H, MI_W),
+    )
 
 
 def test_mirror_scene_uses_one_branch(mirror_scene):
@@ -138,8 +143,7 @@ def _texture_image():
 
 @pytest.fixture(scope="module")
 def every_kind_scene():
-    b = rt.SceneBuilder("classic", width=E_W, height=E_H, spp=1, max_depth=3,
-                        background=E_BG, ambient=E_AMB)
+    b = rt.SceneBuilder("classic", width=E_W, height=E_H, spp=1, max_depth=3, background=E_BG, ambient=E_AMB)
     b.camera(**E_CAM)
     for p, i in E_LIGHTS:
         b.light(p, intensity=i)
@@ -205,7 +209,9 @@ def test_every_kind_plain_sphere_centre_pixel(every_kind_image):
         l = (np.asarray(lp) - p) / np.linalg.norm(np.asarray(lp) - p)
         ndl = v @ l
         r = -l + 2 * ndl * v
-        want = want + np.asarray(I) * (E_RED["diffuse"] * C * max(ndl, 0) + E_RED["specular"] * max(r @ v, 0) ** E_RED["shininess"])
+        want = want + np.asarray(I) * (
+            E_RED["diffuse"] * C * max(ndl, 0) + E_RED["specular"] * max(r @ v, 0) ** E_RED["shininess"]
+        )
     np.testing.assert_allclose(every_kind_image[E_H // 2, E_W // 2], want, rtol=1e-3)
 
 

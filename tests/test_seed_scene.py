@@ -129,8 +129,12 @@ def test_big_sphere_is_light_purple_and_reflects(seed, img):
     assert r == max(float(x) for x in seed.spheres.radius)  # the large one
     d = pixel_rays()
     inside = disc_mask(seed, "purple_mirror", 0.85)
-    upper = inside & (d[..., 1] > d[..., 1][inside].mean()) & ~disc_mask(seed, "glass", 1.2) \
+    upper = (
+        inside
+        & (d[..., 1] > d[..., 1][inside].mean())
+        & ~disc_mask(seed, "glass", 1.2)
         & ~disc_mask(seed, "planet", 1.2)
+    )
     assert upper.sum() > 100
     rgb = np.median(img[upper], 0)
     assert rgb[2] > rgb[0] > rgb[1] and rgb[2] > 0.3  # blue > red > green: purple, and light
@@ -138,8 +142,12 @@ def test_big_sphere_is_light_purple_and_reflects(seed, img):
     # Reflection: without it the lower half (which mirrors the bright floor) changes a lot.
     k = seed.material_names.index("purple_mirror")
     matte = eqx.tree_at(lambda s: s.materials.reflectivity, seed, seed.materials.reflectivity.at[k].set(0.0))
-    lower = inside & (d[..., 1] < d[..., 1][inside].mean()) & ~disc_mask(seed, "glass", 1.2) \
+    lower = (
+        inside
+        & (d[..., 1] < d[..., 1][inside].mean())
+        & ~disc_mask(seed, "glass", 1.2)
         & ~disc_mask(seed, "planet", 1.2)
+    )
     diff = np.abs(render(matte) - img).max(-1)
     assert np.median(diff[lower]) > 0.1
     assert img[lower].std(0).max() > 0.05  # the reflected checker and objects
@@ -203,8 +211,11 @@ def test_shadows_of_two_lights_overlap_darker(seed, img):
     sel = (d[..., 1] < 0) & ~np.isfinite(ray_sphere(np.zeros(3), d, c, r)) & (p[..., 2] > -115) & (p[..., 0] < 10)
     for k in range(seed.spheres.center.shape[0]):
         if k != j:  # nothing else in front of these floor points
-            sel &= ~np.isfinite(ray_sphere(np.zeros(3), d, np.asarray(seed.spheres.center[k], np.float64),
-                                           float(seed.spheres.radius[k])))
+            sel &= ~np.isfinite(
+                ray_sphere(
+                    np.zeros(3), d, np.asarray(seed.spheres.center[k], np.float64), float(seed.spheres.radius[k])
+                )
+            )
     lights = np.asarray(seed.lights.position, np.float64)
     I = np.asarray(seed.lights.intensity, np.float64)[:, 0]
     amb = float(seed.environment.ambient[0])
@@ -221,8 +232,9 @@ def test_shadows_of_two_lights_overlap_darker(seed, img):
     expected = (amb + lit) / (amb + (I[:, None, None] * cos).sum(0))
     n_blocked = blocked.sum(0)
     groups = {k: sel & (n_blocked == k) for k in (0, 1, 2)}
-    assert groups[2].sum() >= 5 and groups[1].sum() >= 10 and groups[0].sum() >= 50, \
-        [int(g.sum()) for g in groups.values()]
+    assert groups[2].sum() >= 5 and groups[1].sum() >= 10 and groups[0].sum() >= 50, [
+        int(g.sum()) for g in groups.values()
+    ]
     med = {k: float(np.median(ratio[g])) for k, g in groups.items()}
     assert med[0] > 0.98 and 0.45 < med[1] < 0.75 and med[2] < 0.35, med
     # Pixel by pixel the rendered shadow matches the analytic one (a few edge pixels may differ).

@@ -57,8 +57,7 @@ CL_MAT = dict(color=(0.8, 0.5, 0.2), ambient=0.7, diffuse=0.9, specular=0.6, shi
 
 def classic_sphere_scene(reflectivity):
     # max_depth=1: the reflected ray is traced once more and escapes to the background
-    b = rt.SceneBuilder("classic", width=CL_W, height=CL_H, spp=1, max_depth=1,
-                        background=CL_BG, ambient=CL_AMB)
+    b = rt.SceneBuilder("classic", width=CL_W, height=CL_H, spp=1, max_depth=1, background=CL_BG, ambient=CL_AMB)
     b.camera(**CL)
     b.light(CL_LIGHT, intensity=CL_I)
     b.material("m", reflectivity=reflectivity, **CL_MAT)
@@ -85,7 +84,9 @@ def classic_sphere_reference(reflectivity):
     rv = (r * -d).sum(1)
     C = np.asarray(CL_MAT["color"])
     spec = np.where(ndl > 0, CL_MAT["specular"] * np.maximum(rv, 0) ** CL_MAT["shininess"], 0.0)
-    local = CL_AMB * CL_MAT["ambient"] * C + CL_I * (CL_MAT["diffuse"] * C * np.maximum(ndl, 0)[:, None] + spec[:, None])
+    local = CL_AMB * CL_MAT["ambient"] * C + CL_I * (
+        CL_MAT["diffuse"] * C * np.maximum(ndl, 0)[:, None] + spec[:, None]
+    )
     # the reflected ray of a convex sphere escapes to the background
     img = np.where(hit[:, None], local + reflectivity * CL_BG, CL_BG)
     return img.reshape(CL_H, CL_W, 3), hit.reshape(CL_H, CL_W)
@@ -134,8 +135,10 @@ SH_CAM = dict(position=(3.0, 30.0, 0.0), look_at=(3.0, 0.0, 0.0), up=(0.0, 0.0, 
 SH_W, SH_H = 39, 36  # 1/3 world unit per pixel on the floor
 SH_FOV = 2 * math.degrees(math.atan(6.0 / 30.0))  # floor z in [-6, 6], x in [-3.5, 9.5]
 SH_AMB = np.array([0.2, 0.2, 0.2])
-SH_LIGHTS = [(np.array([2.0, 20.0, 0.0]), np.array([0.5, 0.5, 0.5])),
-             (np.array([-2.0, 20.0, 0.0]), np.array([0.3, 0.3, 0.3]))]
+SH_LIGHTS = [
+    (np.array([2.0, 20.0, 0.0]), np.array([0.5, 0.5, 0.5])),
+    (np.array([-2.0, 20.0, 0.0]), np.array([0.3, 0.3, 0.3])),
+]
 SH_FLOOR = np.array([0.9, 0.8, 0.7])
 SH_T = 0.6  # transparency of the glass occluders
 SPH_A = (np.array([0.0, 5.0, -3.0]), 1.0)  # opaque
@@ -146,16 +149,29 @@ BOX_D = (np.array([5.0, 4.0, 2.0]), np.array([7.0, 6.0, 4.0]))  # the same cube 
 
 def _cube_mesh(lo, hi):
     v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    f = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
-         (2, 3, 7), (2, 7, 6), (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)]
+    f = [
+        (0, 1, 3),
+        (0, 3, 2),
+        (4, 6, 7),
+        (4, 7, 5),
+        (0, 4, 5),
+        (0, 5, 1),
+        (2, 3, 7),
+        (2, 7, 6),
+        (0, 2, 6),
+        (0, 6, 4),
+        (1, 5, 7),
+        (1, 7, 3),
+    ]
     return v, np.asarray(f, np.int32)
 
 
 @pytest.fixture(scope="module")
 def shadow_image():
     # max_depth=0: only floor pixels are compared, and the floor has no specular children
-    b = rt.SceneBuilder("classic", width=SH_W, height=SH_H, spp=1, max_depth=0,
-                        background=(0.0, 0.0, 0.0), ambient=SH_AMB)
+    b = rt.SceneBuilder(
+        "classic", width=SH_W, height=SH_H, spp=1, max_depth=0, background=(0.0, 0.0, 0.0), ambient=SH_AMB
+    )
     b.camera(fov=SH_FOV, **SH_CAM)
     for p, i in SH_LIGHTS:
         b.light(p, intensity=i)
@@ -236,7 +252,11 @@ def shadow_reference():
         cos = _unit(lp - p)[:, 1]
         img = img + I * (S * cos)[:, None] * SH_FLOOR
         cls.append(dict(A=nA > 0, B=nB > 0, C=nC > 0, D=nD > 0))
-    return img.reshape(SH_H, SH_W, 3), ok.reshape(SH_H, SH_W), [{k: v.reshape(SH_H, SH_W) for k, v in c.items()} for c in cls]
+    return (
+        img.reshape(SH_H, SH_W, 3),
+        ok.reshape(SH_H, SH_W),
+        [{k: v.reshape(SH_H, SH_W) for k, v in c.items()} for c in cls],
+    )
 
 
 def test_classic_unshadowed_and_opaque_shadowed_floor_matches_reference(shadow_image):
@@ -251,7 +271,9 @@ def test_overlapping_shadows_are_darker_than_single_ones(shadow_image):
     _, ok, cls = shadow_reference()
     a1, a2 = cls[0]["A"] & ok, cls[1]["A"] & ok
     both, only1, only2 = a1 & a2, a1 & ~a2, a2 & ~a1
-    lit = ok & ~(cls[0]["A"] | cls[1]["A"] | cls[0]["B"] | cls[1]["B"] | cls[0]["C"] | cls[1]["C"] | cls[0]["D"] | cls[1]["D"])
+    lit = ok & ~(
+        cls[0]["A"] | cls[1]["A"] | cls[0]["B"] | cls[1]["B"] | cls[0]["C"] | cls[1]["C"] | cls[0]["D"] | cls[1]["D"]
+    )
     assert both.sum() >= 3 and only1.sum() >= 3 and only2.sum() >= 3
     lum = shadow_image.mean(-1)
     # only ambient where both lights are blocked
@@ -364,7 +386,9 @@ def _first_hit_diffuse(o, d):
     alb = np.where(ball[:, None], PH_BALL_ALBEDO, PH_FLOOR)
     L, amb = _direct(p, n, alb)
     # silhouette of the ball: ambiguous
-    near = np.isfinite(ray_sphere_np(o, d, PH_BALL[0], PH_BALL[1] + 1e-3)) != np.isfinite(ray_sphere_np(o, d, PH_BALL[0], PH_BALL[1] - 1e-3))
+    near = np.isfinite(ray_sphere_np(o, d, PH_BALL[0], PH_BALL[1] + 1e-3)) != np.isfinite(
+        ray_sphere_np(o, d, PH_BALL[0], PH_BALL[1] - 1e-3)
+    )
     return np.where(np.isfinite(t)[:, None], L, 0.0), amb | near
 
 

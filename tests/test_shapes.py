@@ -219,7 +219,7 @@ def test_sphere_distance_matches_reference_random_rays(sphere_scene):
     # tmin: the kernel ignores hits at t <= tmin (so the far root is reported)
     P = S.sphere_soa(rt.Spheres(jnp.asarray([C_S]), jnp.asarray([R_S]), jnp.asarray([0])))
     k = np.flatnonzero(valid)[0]
-    t_far = kernel_t(S.sphere_t, P, o[k:k + 1], d[k:k + 1], tmin=float(t[k]) + 1e-9)[0, 0]
+    t_far = kernel_t(S.sphere_t, P, o[k : k + 1], d[k : k + 1], tmin=float(t[k]) + 1e-9)[0, 0]
     oc = o[k] - C_S
     b = oc @ d[k]
     assert t_far == pytest.approx(-b + math.sqrt(b * b - oc @ oc + R_S**2), rel=1e-10)
@@ -227,8 +227,16 @@ def test_sphere_distance_matches_reference_random_rays(sphere_scene):
 
 def test_sphere_uv_of_known_points(sphere_scene):
     # u: longitude about +y, 0.5 facing +z, 0.75 facing +x; v: 0 at -y, 1 at +y
-    dirs = np.array([[0, 0, 1.0], [1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0.001], [0, -1.0, 0.001],
-                     [0, math.sin(math.radians(30)), math.cos(math.radians(30))]])
+    dirs = np.array(
+        [
+            [0, 0, 1.0],
+            [1.0, 0, 0],
+            [-1.0, 0, 0],
+            [0, 1.0, 0.001],
+            [0, -1.0, 0.001],
+            [0, math.sin(math.radians(30)), math.cos(math.radians(30))],
+        ]
+    )
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     o = C_S + 10 * dirs
     valid, t, n, uv = hits(sphere_scene, o, -dirs)
@@ -269,9 +277,12 @@ def test_plane_hit_both_sides_parallel_and_away(plane_scene):
 
 def test_plane_grazing_ray_is_a_miss_without_nan():
     P = S.plane_soa(rt.Planes(jnp.asarray([[0.0, 0, 0]]), jnp.asarray([[0.0, 1, 0]]), jnp.asarray([0])))
-    t = kernel_t(S.plane_t, P, [[0, 0.0, 0], [0, 1e-3, 0], [0, 1.0, 0]], [[1.0, 0, 0], [1.0, -1e-3, 0], [1.0, -1e-14, 0]])
+    t = kernel_t(
+        S.plane_t, P, [[0, 0.0, 0], [0, 1e-3, 0], [0, 1.0, 0]], [[1.0, 0, 0], [1.0, -1e-3, 0], [1.0, -1e-14, 0]]
+    )
     assert t[0, 0] == INF  # in the plane
-    d1 = np.array([1.0, -1e-3, 0]); d1 /= np.linalg.norm(d1)
+    d1 = np.array([1.0, -1e-3, 0])
+    d1 /= np.linalg.norm(d1)
     assert t[1, 0] == pytest.approx(1e-3 / -d1[1], rel=1e-9)
     assert t[2, 0] == INF  # |d.n| below the kernel's threshold: parallel
     assert not np.isnan(t).any()
@@ -324,7 +335,12 @@ def test_quad_inside_test_matches_trapezoid(quad_scene):
 def test_quad_edges_a_hair_inside_and_outside():
     P = S.quad_soa(rt.Quads(jnp.asarray([TRAPEZOID]), jnp.asarray([0])))
     eps = 1e-7
-    mids = [(1.0, 0.0, (0, -1)), (1.75, 0.5, (2, 1)), (1.0, 1.0, (0, 1)), (0.25, 0.5, (-2, 1))]  # edge midpoints, outward dirs
+    mids = [
+        (1.0, 0.0, (0, -1)),
+        (1.75, 0.5, (2, 1)),
+        (1.0, 1.0, (0, 1)),
+        (0.25, 0.5, (-2, 1)),
+    ]  # edge midpoints, outward dirs
     o, want = [], []
     for x, y, (ex, ey) in mids:
         nrm = np.array([ex, ey]) / math.hypot(ex, ey)

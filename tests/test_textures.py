@@ -73,13 +73,16 @@ def _box_average(fun, u, v, wu, wv, n=1200):
     return fun(U, Vv).mean()
 
 
-@pytest.mark.parametrize("u,v,wu,wv,scale", [
-    (0.3, 0.4, 0.5, 0.5, 1.0),
-    (0.95, 1.02, 0.3, 0.1, 1.0),
-    (-0.2, 2.6, 1.7, 0.8, 1.0),
-    (0.1, 0.12, 0.2, 0.45, 3.0),
-    (5.0, 5.0, 2.5, 2.5, 0.5),
-])
+@pytest.mark.parametrize(
+    "u,v,wu,wv,scale",
+    [
+        (0.3, 0.4, 0.5, 0.5, 1.0),
+        (0.95, 1.02, 0.3, 0.1, 1.0),
+        (-0.2, 2.6, 1.7, 0.8, 1.0),
+        (0.1, 0.12, 0.2, 0.45, 3.0),
+        (5.0, 5.0, 2.5, 2.5, 0.5),
+    ],
+)
 def test_filtered_checker_equals_area_fraction(u, v, wu, wv, scale):
     f = float(checker(jnp.asarray([[u], [v]], F64), jnp.asarray([[wu], [wv]], F64), jnp.asarray([scale], F64), True)[0])
     ref = _box_average(lambda a, b: hard_checker_np(a, b, scale), u, v, wu, wv)
@@ -131,13 +134,15 @@ def test_bilinear_exact_at_texel_centres(image):
 
 
 def test_bilinear_interpolates_wraps_u_and_clamps_v(image):
-    uv = np.array([
-        [(1 + 0.5) / W_IMG + 0.5 / W_IMG, 1 - 2.5 / H_IMG],  # halfway between texels (2,1) and (2,2)
-        [0.0, 1 - 0.5 / H_IMG],  # u = 0: halfway between the last and first column
-        [0.3 / W_IMG + 0.5 / W_IMG, 1.0],  # v = 1: clamped to the top row
-        [(3 + 0.5) / W_IMG, -0.2],  # v < 0: clamped to the bottom row
-        [(1 + 0.5) / W_IMG + 1.0, 1 - 1.5 / H_IMG],  # u + 1 wraps to the same texel
-    ]).T
+    uv = np.array(
+        [
+            [(1 + 0.5) / W_IMG + 0.5 / W_IMG, 1 - 2.5 / H_IMG],  # halfway between texels (2,1) and (2,2)
+            [0.0, 1 - 0.5 / H_IMG],  # u = 0: halfway between the last and first column
+            [0.3 / W_IMG + 0.5 / W_IMG, 1.0],  # v = 1: clamped to the top row
+            [(3 + 0.5) / W_IMG, -0.2],  # v < 0: clamped to the bottom row
+            [(1 + 0.5) / W_IMG + 1.0, 1 - 1.5 / H_IMG],  # u + 1 wraps to the same texel
+        ]
+    ).T
     out = np.asarray(bilinear(jnp.asarray(image), jnp.asarray(uv))).T
     np.testing.assert_allclose(out[0], 0.5 * (image[2, 1] + image[2, 2]), atol=1e-12)
     np.testing.assert_allclose(out[1], 0.5 * (image[0, W_IMG - 1] + image[0, 0]), atol=1e-12)
@@ -161,8 +166,9 @@ def test_spherical_mapping_of_known_points_addresses_the_right_texels(image):
     pts = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 0.5, math.sqrt(0.75)]])
     o = (2 * pts).T
     d = -pts.T
-    t, n, uv, rate = jax.jit(S.sphere_hit)(jnp.asarray(np.tile(c[:, None], (1, 3))), jnp.ones(3, F64),
-                                           jnp.asarray(o), jnp.asarray(d), jnp.ones(3, F64))
+    t, n, uv, rate = jax.jit(S.sphere_hit)(
+        jnp.asarray(np.tile(c[:, None], (1, 3))), jnp.ones(3, F64), jnp.asarray(o), jnp.asarray(d), jnp.ones(3, F64)
+    )
     uv = np.asarray(uv)
     np.testing.assert_allclose(np.asarray(t), 1.0, atol=1e-12)
     np.testing.assert_allclose(uv[:, 0], [0.5, 0.5], atol=1e-12)  # facing +z: image centre
