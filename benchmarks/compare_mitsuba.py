@@ -32,10 +32,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 import jax  # noqa: E402
+import mitsuba_scene as ms  # noqa: E402
 import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
-import mitsuba_scene as ms  # noqa: E402
 import scenes  # noqa: E402
 
 

@@ -102,7 +102,7 @@ def main():
     )
     print("| parameter | textures | spp | AD | FD 1e-6 | FD big | ref | AD / ref |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
-    for name, comp, label in PARAMS:
+    for _name, _comp, label in PARAMS:
         for filt in (True, False):
             for spp in (1, 16):
                 r = rows[(label, filt, spp)]

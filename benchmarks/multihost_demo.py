@@ -125,7 +125,8 @@ def worker(args):
     #    (Explicit axes in jax 0.10) the gradient fails (step 3).
     def global_scene(axis_type):
         import equinox as eqx
-        from jax.sharding import NamedSharding, PartitionSpec as P
+        from jax.sharding import NamedSharding
+        from jax.sharding import PartitionSpec as P
 
         mesh = jax.make_mesh((jax.device_count(),), ("tiles",), devices=jax.devices(), axis_types=(axis_type,))
         rep_sh = NamedSharding(mesh, P())

@@ -22,9 +22,9 @@ class Camera(eqx.Module):
     right of the image.
     """
 
-    position: Float[Array, "3"]
-    look_at: Float[Array, "3"]
-    up: Float[Array, "3"]
+    position: Float[Array, 3]
+    look_at: Float[Array, 3]
+    up: Float[Array, 3]
     fov: Float[Array, ""]
 
     def __check_init__(self):

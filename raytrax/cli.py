@@ -27,7 +27,6 @@ import sys
 import threading
 import time
 from importlib import resources
-from typing import Optional
 
 PROG = "raytrax"
 SEED_SCENE = "cosc363.toml"
@@ -314,7 +313,7 @@ def _host_digest() -> str:
     return text
 
 
-def _executable_key(scene) -> Optional[str]:
+def _executable_key(scene) -> str | None:
     """Key of the compiled render of ``scene``, or None when the scene has a static
     part without a stable text form."""
     import hashlib
@@ -350,7 +349,7 @@ def _executable_key(scene) -> Optional[str]:
     return h.hexdigest()[:40]
 
 
-def _executable_path(key) -> Optional[str]:
+def _executable_path(key) -> str | None:
     import jax
 
     if os.environ.get("RAYTRAX_EXECUTABLE_CACHE", "1") == "0" or key is None:
@@ -624,7 +623,7 @@ def _enable_compilation_cache():
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
-def main(argv: Optional[list] = None) -> int:
+def main(argv: list | None = None) -> int:
     """Entry point of the ``raytrax`` command; returns the exit status."""
     import signal
 

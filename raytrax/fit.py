@@ -40,7 +40,8 @@ import math
 import sys
 import time
 import warnings
-from typing import Any, Callable, Optional, Sequence, Union
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -167,14 +168,14 @@ class _Problem(eqx.Module):
     scale: jax.Array  # () 1 / loss at the start
     lo: dict  # name -> array (finite where the parameter has a lower bound)
     hi: dict
-    key: Optional[jax.Array]
+    key: jax.Array | None
     names: tuple = eqx.field(static=True)
     dtypes: tuple = eqx.field(static=True)  # the scene's dtype of each fitted parameter
     maps: tuple = eqx.field(static=True)  # per name: "none" | "lower" | "upper" | "both"
     by_path: bool = eqx.field(static=True)  # names are pytree paths (selector), not raytrax.parameters names
     render_opts: tuple = eqx.field(static=True)
-    loss_fn: Optional[Callable] = eqx.field(static=True)
-    reg_fn: Optional[Callable] = eqx.field(static=True, default=None)
+    loss_fn: Callable | None = eqx.field(static=True)
+    reg_fn: Callable | None = eqx.field(static=True, default=None)
 
     # z (unconstrained) -> parameter values
     def values(self, z):
@@ -575,22 +576,22 @@ class _Reporter:
 def fit(
     scene: Scene,
     target,
-    params: Union[str, Sequence[str], dict, Callable],
+    params: str | Sequence[str] | dict | Callable,
     *,
-    solver: Union[str, Any] = "levenberg_marquardt",
-    bounds: Optional[dict] = None,
+    solver: str | Any = "levenberg_marquardt",
+    bounds: dict | None = None,
     default_bounds: bool = True,
-    loss: Union[str, Callable] = "mse",
+    loss: str | Callable = "mse",
     weights=None,
-    regularizer: Optional[Callable] = None,
+    regularizer: Callable | None = None,
     max_steps: int = 100,
-    rtol: Optional[float] = None,
-    atol: Optional[float] = None,
-    learning_rate: Optional[float] = None,
-    render_kwargs: Optional[dict] = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    learning_rate: float | None = None,
+    render_kwargs: dict | None = None,
     patience: int = 10,
-    progress: Union[bool, str] = True,
-    callback: Optional[Callable] = None,
+    progress: bool | str = True,
+    callback: Callable | None = None,
     check: bool = True,
     throw: bool = True,
 ) -> FitResult:

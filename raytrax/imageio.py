@@ -20,7 +20,7 @@ interrupted write never leaves a half-written (or any) output file.
 from __future__ import annotations
 
 import os
-from typing import Mapping, Optional
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -103,7 +103,7 @@ def _set_attr(spec, key, value):
         spec.attribute(key, str(value))
 
 
-def save_image(path, img, *, metadata: Optional[Mapping] = None, bits: Optional[int] = None) -> None:
+def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None = None) -> None:
     """Write a linear ``(H, W, 3)`` image (numpy or jax array) to ``path``.
 
     The format follows the extension (see :data:`WRITE_FORMATS`): ``.exr`` stores
@@ -218,7 +218,7 @@ def load_image_metadata(path) -> dict:
         inp.close()
 
 
-def show(img, *, ax=None, title: Optional[str] = None, scale: float = 1.0):
+def show(img, *, ax=None, title: str | None = None, scale: float = 1.0):
     """Show a linear image inline (notebooks) with matplotlib, sRGB-encoded.
 
     ``scale`` multiplies the image first (exposure). Returns the axes.

@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Optional
 
 import equinox as eqx
 import jax
@@ -518,17 +517,17 @@ _render_edges_jit = eqx.filter_jit(_render_edges)
 def render(
     scene: Scene,
     *,
-    width: Optional[int] = None,
-    height: Optional[int] = None,
-    spp: Optional[int] = None,
-    max_depth: Optional[int] = None,
+    width: int | None = None,
+    height: int | None = None,
+    spp: int | None = None,
+    max_depth: int | None = None,
     key=None,
-    filter_textures: Optional[bool] = None,
-    branches: Optional[int] = None,
+    filter_textures: bool | None = None,
+    branches: int | None = None,
     tile_rays: int = RAYS_PER_TILE,
     devices=None,
     edge_gradients: bool = False,
-    edge_budget: Optional[int] = None,
+    edge_budget: int | None = None,
 ) -> jax.Array:
     """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
 

@@ -12,14 +12,15 @@ with the same results.
 from __future__ import annotations
 
 import math
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
-from . import bvh as B
 from . import _vec as V
+from . import bvh as B
 from . import shapes as S
 
 BLOCK = 32

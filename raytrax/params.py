@@ -54,7 +54,8 @@ is the per-material texture kind (an integer leaf), which decides which
 from __future__ import annotations
 
 import difflib
-from typing import Any, Callable, Mapping, NamedTuple
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax

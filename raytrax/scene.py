@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -71,8 +72,8 @@ class Settings:
 class Environment(eqx.Module):
     """``background (3,)``: radiance of escaped rays; ``ambient (3,)``: classic ambient light."""
 
-    background: Float[Array, "3"]
-    ambient: Float[Array, "3"]
+    background: Float[Array, 3]
+    ambient: Float[Array, 3]
 
 
 class Scene(eqx.Module):
@@ -114,11 +115,11 @@ class Scene(eqx.Module):
         parts += [m.triangles() for m in self.meshes]
         return jnp.concatenate([t for t, _ in parts], 0), jnp.concatenate([m for _, m in parts], 0)
 
-    def replace_settings(self, **kw) -> "Scene":
+    def replace_settings(self, **kw) -> Scene:
         """A copy with some static render settings changed."""
         return dataclasses.replace(self, settings=dataclasses.replace(self.settings, **kw))
 
-    def astype(self, dtype) -> "Scene":
+    def astype(self, dtype) -> Scene:
         """A copy with every floating-point leaf cast to ``dtype`` (e.g. float64 for
         gradient checks; needs ``jax.config.update("jax_enable_x64", True)``)."""
 
@@ -358,7 +359,7 @@ class SceneBuilder:
             raise ValueError("material: a scene needs at least one material")
         names = list(self._mats)
         mid = {n: k for k, n in enumerate(names)}
-        for i, (kind, _, m) in enumerate(self._objects):
+        for i, (_kind, _, m) in enumerate(self._objects):
             if m not in mid:
                 from difflib import get_close_matches
 

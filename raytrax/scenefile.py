@@ -39,7 +39,7 @@ import os
 import re
 import tomllib
 from pathlib import Path
-from typing import Any, Optional, Union
+from typing import Any
 
 import numpy as np
 
@@ -130,10 +130,10 @@ class TextureDesc:
     color2: tuple = (0.0, 0.0, 0.0)
     scale: float = 1.0
     direction: tuple = (0.0, 1.0)
-    file: Optional[str] = None
-    name: Optional[str] = None
-    image: Optional[np.ndarray] = dataclasses.field(default=None, repr=False, compare=False)
-    source: Optional[str] = None  # absolute path of the image file
+    file: str | None = None
+    name: str | None = None
+    image: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    source: str | None = None  # absolute path of the image file
 
     def runtime(self):
         if self.kind == "checker":
@@ -153,7 +153,7 @@ class MaterialDesc:
     reflectivity: tuple = (0.0, 0.0, 0.0)
     transparency: float = 0.0
     ior: float = 1.0
-    texture: Optional[TextureDesc] = None
+    texture: TextureDesc | None = None
 
 
 @dataclasses.dataclass
@@ -179,7 +179,7 @@ class SceneDescription:
     materials: dict = dataclasses.field(default_factory=dict)
     objects: list = dataclasses.field(default_factory=list)
     source: str = "<scene>"  # the file it came from, for messages
-    base_dir: Optional[str] = None  # folder that relative files are read from
+    base_dir: str | None = None  # folder that relative files are read from
     float32: bool = False  # values are float32 numbers (came from a float32 Scene)
 
     def builder(self) -> SceneBuilder:
@@ -248,7 +248,7 @@ class SceneDescription:
         _remember_sources(self)
         return scene
 
-    def with_render(self, **kw) -> "SceneDescription":
+    def with_render(self, **kw) -> SceneDescription:
         """A copy with some ``[render]`` values changed (validated)."""
         for k, v in kw.items():
             msg = check_render_value(k, v)
@@ -405,7 +405,7 @@ def _did_you_mean(value: str, options) -> str:
     return f" (did you mean {near[0]!r}?)" if near else ""
 
 
-def _check_pixels(width, height) -> Optional[str]:
+def _check_pixels(width, height) -> str | None:
     if width * height > LIMITS["pixels"]:
         return (
             f"expected at most {LIMITS['pixels']:,} pixels, got width x height = {width} x {height} "
@@ -414,7 +414,7 @@ def _check_pixels(width, height) -> Optional[str]:
     return None
 
 
-def check_render_value(key: str, value) -> Optional[str]:
+def check_render_value(key: str, value) -> str | None:
     """The problem with a ``[render]`` setting (``width``, ``height``, ``spp``,
     ``max_depth``) as ``"expected ..., got ..."``, or ``None`` when it is fine.
     Shared by the scene loader and the CLI's overrides."""
@@ -494,7 +494,7 @@ OBJECT_REQUIRED = {
 
 
 class _Parser:
-    def __init__(self, source: str, base_dir: Optional[str]):
+    def __init__(self, source: str, base_dir: str | None):
         self.source = source
         self.base_dir = base_dir
         self.shading = "classic"
@@ -838,7 +838,7 @@ class _Parser:
 
 
 def loads_description(
-    text: str, *, source: str = "<string>", base_dir: Optional[str] = None, default_name: str = "scene"
+    text: str, *, source: str = "<string>", base_dir: str | None = None, default_name: str = "scene"
 ) -> SceneDescription:
     """Parse and validate scene TOML ``text`` (files are read relative to ``base_dir``)."""
     try:
@@ -894,7 +894,7 @@ def _push(lst, item):
     del lst[:-_MAX_SOURCES]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _builtin(name: str) -> np.ndarray:
     """A builtin image, read once per process (read-only)."""
     img = tx.builtin_image(name)
@@ -916,7 +916,7 @@ def _remember_sources(desc: SceneDescription):
                 _push(_MESH_SOURCES, (p["vertices"], p["faces"], meta))
 
 
-def _find_image_source(img: np.ndarray) -> Optional[TextureDesc]:
+def _find_image_source(img: np.ndarray) -> TextureDesc | None:
     for src, t in reversed(_IMAGE_SOURCES):
         if src.shape == img.shape and np.array_equal(src.astype(img.dtype), img):
             if t.kind == "builtin" or (t.source and os.path.exists(t.source)):
@@ -931,7 +931,7 @@ def _find_image_source(img: np.ndarray) -> Optional[TextureDesc]:
     return None
 
 
-def _find_mesh_source(v: np.ndarray, f: np.ndarray) -> Optional[dict]:
+def _find_mesh_source(v: np.ndarray, f: np.ndarray) -> dict | None:
     for sv, sf, meta in reversed(_MESH_SOURCES):
         if (
             sv.shape == v.shape
@@ -1122,7 +1122,7 @@ def _relative(source: str, folder: str) -> str:
 
 
 def dumps_scene(
-    desc: SceneDescription, folder: Optional[str] = None, *, sidecars: Optional[list] = None, stem: str = "scene"
+    desc: SceneDescription, folder: str | None = None, *, sidecars: list | None = None, stem: str = "scene"
 ) -> str:
     """The TOML text of a description. File references are written relative to
     ``folder``; image textures with no file get sidecar names ``<stem>.<material>.exr``
@@ -1219,7 +1219,7 @@ def _atomic_write(path: str, data: bytes):
         fh.write(data)
 
 
-def save_scene(scene: Union[Scene, SceneDescription], path) -> str:
+def save_scene(scene: Scene | SceneDescription, path) -> str:
     """Write a :class:`Scene` or :class:`SceneDescription` as a TOML scene file.
 
     Texture and mesh files are referred to relative to the new file's folder; an

@@ -40,7 +40,8 @@ step makes finite differences jump (see docs/gradients.md); pass
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Mapping, Optional
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -131,9 +132,9 @@ class GradientRow:
     step: float
     fd: float
     rev: float
-    fwd: Optional[float]
+    fwd: float | None
     tol: float
-    fd_half: Optional[float] = None
+    fd_half: float | None = None
 
     @property
     def err(self) -> float:
@@ -274,7 +275,7 @@ def gradient_report(
     *,
     names=None,
     rtol: float = 1e-4,
-    atol: Optional[float] = None,
+    atol: float | None = None,
     step=None,
     rel_step: float = _EPS64 ** (1.0 / 3.0),
     forward_mode: bool = True,
@@ -356,7 +357,7 @@ def check_gradients(
     *,
     names=None,
     rtol: float = 1e-4,
-    atol: Optional[float] = None,
+    atol: float | None = None,
     step=None,
     rel_step: float = _EPS64 ** (1.0 / 3.0),
     forward_mode: bool = True,

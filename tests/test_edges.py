@@ -39,7 +39,7 @@ ALBEDO = np.array([0.5, 0.25, 1.0])
 AMBIENT = 0.8
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def quad_scene():
     """Camera at distance 10 with ``10 tan(fov / 2) = QH / 2``: one world unit at the
     quad is exactly one pixel. The quad spans x in [-2.3, 3.4] (pixel columns 5.7 to
@@ -115,7 +115,7 @@ STEP = 0.015  # world units: edges move 0.05-0.1 pixel, 5-10 of the reference's 
 RTOL = 0.05
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def occluder_scene():
     """``scenes/edge_occluders.toml``: a checkered floor (filtered texture) under two lights,
     with a sphere, a box (lifted, rotated) and a tetrahedron casting shadows and silhouettes,
@@ -153,7 +153,7 @@ def _occ_loss(q, **kw):
     return jnp.mean(jnp.asarray(smooth_weights(FH, FW)) * rt.render(s, **kw))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _occ_table():
     """(name, component) -> (FD, edge, plain) for every parameter component."""
     q0 = _occ_params()
@@ -308,7 +308,7 @@ SW, SH = 24, 18
 SPEC_RTOL = 0.15
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def specular_scene():
     """Physical shading, one light. A tilted mirror shows a ball that the camera does not
     see directly (outside the view); a glass sphere (ior 1.5) refracts the edges of a red

@@ -14,7 +14,6 @@ import pathlib
 
 import numpy as np
 import pytest
-
 from golden import cases
 
 TOL = 1e-12

@@ -43,7 +43,7 @@ REL_STEP = 1e-6
 WALL, FLOOR, GLASS, MIRROR, PLANET, BOX, TETRA, TRI, QUAD, MESH = range(10)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def scene_g(shading):
     """Every primitive kind, every texture kind, glass, a mirror and two lights, 16 x 12,
     depth 2: a checkered wall (leaning back), a striped floor, a glass, a mirror and an
@@ -90,7 +90,7 @@ def scene_g(shading):
     return b.build(jnp.float64)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def setup_g(shading):
     """Scene, its parameters, and a target rendered with several parameters moved (so the
     residual, and therefore every gradient, is non-trivial)."""

@@ -23,17 +23,17 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_gradients import BOX, FLOOR, GLASS, MESH, MIRROR, PLANET, QUAD, TETRA, TRI, WALL, H, W, scene_g
 
 import raytrax as rt
 from raytrax.camera import primary_rays
-from test_gradients import BOX, FLOOR, GLASS, MESH, MIRROR, PLANET, QUAD, TETRA, TRI, WALL, H, W, scene_g
 
 DT = jnp.float32
 WEIGHTS = np.random.default_rng(7).uniform(0.5, 1.5, (H, W, 3))
 BOTH = ["classic", "physical"]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fns(which):
     s = scene_g(which).astype(DT)
     w = jnp.asarray(WEIGHTS, DT)

@@ -9,9 +9,9 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import camera_rays_np, ray_sphere_np
 
 import raytrax as rt
-from helpers import camera_rays_np, ray_sphere_np
 
 F64 = jnp.float64
 
