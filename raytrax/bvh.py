@@ -40,7 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from . import shapes as S
+from .shapes.base import check_shape
+from .shapes.triangles import tri_t
 
 LEAF = 32  # triangles per leaf
 MIN_TRIANGLES = 64  # the BVH is used above this many triangles, brute force below (crossover: benchmarks/README.md)
@@ -59,8 +60,8 @@ class TriangleBVH(eqx.Module):
     n_triangles: int = eqx.field(static=True, default=-1)  # length of the merged list it was built for
 
     def __check_init__(self):
-        S._check_shape("TriangleBVH.order", self.order, (None,))
-        S._check_shape("TriangleBVH.pad", self.pad, self.order.shape)
+        check_shape("TriangleBVH.order", self.order, (None,))
+        check_shape("TriangleBVH.pad", self.pad, self.order.shape)
         if self.order.shape[0] % LEAF:
             raise ValueError(f"TriangleBVH.order: length {self.order.shape[0]} is not a multiple of {LEAF}")
 
@@ -240,7 +241,7 @@ def closest(acc: Accel, ray, tmin):
 
     def body(leaf, act, ray2, st):
         tb, ib = st
-        T = S.tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, tmin)
+        T = tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, tmin)
         T = jnp.where(act[:, None], T, INF)
         j = jnp.argmin(T, 1).astype(jnp.int32)
         tj = jnp.min(T, 1)
@@ -266,7 +267,7 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
 
     def body(leaf, act, const, counts):
         ray2, tmax = const
-        hit = (S.tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, 0.0) < tmax) & act[:, None]
+        hit = (tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, 0.0) < tmax) & act[:, None]
         m = mat[leaf]  # (n, LEAF)
         oh = (m[:, :, None] == mids[None, None, :]) & hit[:, :, None]
         return counts + jnp.sum(oh.astype(dt), 1)

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from . import _vec as V
+from . import vec as V
 
 
 class Camera(eqx.Module):

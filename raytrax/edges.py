@@ -122,13 +122,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _vec as V
 from . import textures as tx
+from . import vec as V
 from .camera import rays_through
-from .integrator import EPS_REL, _pattern_cell
-from .intersect import _closest_kind, _no_hit, prepare
+from .intersect import EPS_REL, closest_kind, no_hit, prepare
+from .lights import LIGHTS
 from .materials import fresnel_dielectric, refract
-from .shapes import euler_matrix
+from .shapes import KINDS
+from .textures import pattern_cell
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -154,102 +155,45 @@ class Prims(NamedTuple):
     eo: jax.Array  # (4, 3, Np) edge origins
     em: jax.Array  # (4, 3, Np) unit in-plane edge normals pointing inside
     finite: jax.Array  # (Np,) False for infinite planes
+    prad: jax.Array  # (Np,) > 0: a disk of that radius about pp (the edges are unused)
     solid: jax.Array  # (Np,) polygon index of the first face of its convex solid, -1: none
     nface: jax.Array  # (Np,) faces of that solid (6 box, 4 tetrahedron, 0 none)
-    light: jax.Array  # (3, L)
+    light: jax.Array  # (3, L) positions; directions of travel where ldir
+    ldir: jax.Array  # (L,) the light is directional
+    far: jax.Array  # () beyond every finite primitive (the far end of a directional light's shadow segment)
     mat: jax.Array  # (Ns + Np,) material of each global id
     trans: jax.Array  # (M,) transparency
     refl: jax.Array  # (M,) largest reflectivity component
     ior: jax.Array  # (M,) refractive index
 
 
-def _unit(x):
-    n2 = jnp.sum(x * x, -1, keepdims=True)
-    ok = n2 > 1e-30
-    return jnp.where(ok, x / jnp.sqrt(jnp.where(ok, n2, 1.0)), 0.0)
-
-
-def _polys_from_edges(origins, dirs, normal):
-    """``origins, dirs (N, 4, 3)``, ``normal (N, 3)`` -> (pp, pn, eo, em)."""
-    n = _unit(normal)
-    m = _unit(jnp.cross(n[:, None, :], dirs))
-    return origins[:, 0], n, origins, m
-
-
-def _quad_polys(corners):
-    c = corners
-    e = jnp.roll(c, -1, axis=1) - c
-    n = jnp.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 1])
-    return _polys_from_edges(c, e, n)
-
-
-def _face_signs():
-    """``(6, 4, 3)`` corner signs of the unit box's faces, face ``2 axis + (side > 0)``."""
-    out = []
-    for a in range(3):
-        u, v = (a + 1) % 3, (a + 2) % 3
-        for s in (-1.0, 1.0):
-            face = []
-            order = ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
-            for su, sv in order if s > 0 else order[::-1]:  # counter-clockwise seen from outside
-                c = [0.0, 0.0, 0.0]
-                c[a], c[u], c[v] = s, su, sv
-                face.append(c)
-            out.append(face)
-    return out
-
-
-def _box_faces(boxes):
-    """Box faces as quads ``(6 N, 4, 3)``, face ``2 axis + (side > 0)`` of each box."""
-    R = euler_matrix(boxes.rotation)  # (N, 3, 3)
-    c = 0.5 * (boxes.lo + boxes.hi)
-    h = 0.5 * jnp.abs(boxes.hi - boxes.lo)
-    loc = jnp.asarray(_face_signs(), c.dtype)[None] * h[:, None, None, :]  # (N, 6, 4, 3)
-    world = c[:, None, None, :] + jnp.einsum("nij,nfkj->nfki", R, loc)
-    return world.reshape(-1, 4, 3)
-
-
 def build_prims(scene) -> tuple[Prims, dict]:
-    """The :class:`Prims` of ``scene`` (differentiable) and :func:`id_offsets` with the
+    """The :class:`Prims` of ``scene`` (differentiable), in the order of the kind
+    registry (:data:`raytrax.shapes.KINDS`), and :func:`id_offsets` with the
     ``solid`` table (polygon index of each polygon's solid's first face, -1: none)."""
     dt = scene.dtype
     off = id_offsets(scene)
     ns = off["ns"]
-    parts = []  # (pp, pn, eo, em, finite)
-    pmat = []  # material of each polygon
-    pl = scene.planes
-    if pl.point.shape[0]:
-        N = pl.point.shape[0]
-        z = jnp.zeros((N, 4, 3), dt)
-        parts.append((pl.point, _unit(pl.normal), z, z, jnp.zeros((N,), bool)))
-        pmat.append(pl.material)
-    if scene.quads.corners.shape[0]:
-        parts.append(_quad_polys(scene.quads.corners) + (jnp.ones((scene.quads.corners.shape[0],), bool),))
-        pmat.append(scene.quads.material)
+    parts = []  # EdgePolygons per kind
     solids = []  # (first polygon index, faces per solid, number of solids)
-    if scene.tetrahedra.center.shape[0]:
-        solids.append(
-            (off["triangle"] - off["plane"] + scene.triangles.vertices.shape[0], 4, scene.tetrahedra.center.shape[0])
-        )
-    T, TM = scene.merged_triangles()
-    if T.shape[0]:
-        v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
-        origins = jnp.stack([v0, v1, v2, v2], 1)
-        dirs = jnp.stack([v1 - v0, v2 - v1, v0 - v2, v0 - v2], 1)
-        q = _polys_from_edges(origins, dirs, jnp.cross(v1 - v0, v2 - v0))
-        parts.append(q + (jnp.ones((T.shape[0],), bool),))
-        pmat.append(TM)
-    if scene.boxes.lo.shape[0]:
-        solids.append((off["box"] - off["plane"], 6, scene.boxes.lo.shape[0]))
-        parts.append(_quad_polys(_box_faces(scene.boxes)) + (jnp.ones((6 * scene.boxes.lo.shape[0],), bool),))
-        pmat.append(jnp.repeat(scene.boxes.material, 6))
+    for spec in KINDS:
+        if spec.edge == "sphere":
+            continue
+        group = scene.prims[spec.field]
+        n = spec.n_ids(group)
+        if not n:
+            continue
+        if spec.solid_faces:
+            solids.append((off[spec.name] - ns, spec.solid_faces, n // spec.solid_faces))
+        parts.append(spec.edge_polygons(group))
     if parts:
-        pp, pn, eo, em, fin = (jnp.concatenate(x, 0) for x in zip(*parts))
+        pp, pn, eo, em, fin, prad, pmat = (jnp.concatenate(x, 0) for x in zip(*parts, strict=True))
     else:  # one dummy polygon keeps the gathers well defined
         pp = pn = jnp.zeros((1, 3), dt)
         eo = em = jnp.zeros((1, 4, 3), dt)
         fin = jnp.zeros((1,), bool)
-        pmat = [jnp.zeros((1,), jnp.int32)]
+        prad = jnp.zeros((1,), dt)
+        pmat = jnp.zeros((1,), jnp.int32)
     npoly = fin.shape[0]
     solid = np.full((npoly,), -1, np.int32)
     nface = np.zeros((npoly,), np.int32)
@@ -257,15 +201,28 @@ def build_prims(scene) -> tuple[Prims, dict]:
         idx = start + np.arange(k * m)
         solid[idx] = start + (np.arange(k * m) // k) * k
         nface[idx] = k
+    sph = scene.prims[KINDS[0].field]
     if ns:
-        c, r = scene.spheres.center.T, scene.spheres.radius
-        smat = [scene.spheres.material]
+        c, r = sph.center.T, sph.radius
+        smat = sph.material.astype(jnp.int32)
     else:
         c, r = jnp.zeros((3, 1), dt), jnp.zeros((1,), dt)
-        smat = []
-    mat = jnp.concatenate([m.astype(jnp.int32) for m in smat + pmat])
+        smat = jnp.zeros((0,), jnp.int32)
+    mat = jnp.concatenate([smat, pmat.astype(jnp.int32)])
     ms = scene.materials
-    L = scene.lights.position.T if scene.lights.position.shape[0] else jnp.zeros((3, 1), dt)
+    lg = [(s.edge_geometry(scene.light_sets[s.field]), s.directional) for s in LIGHTS]
+    lg = [(g, flag) for g, flag in lg if g.shape[0]]
+    if lg:
+        L = jnp.concatenate([g for g, _ in lg], 0).T
+        ldir = jnp.concatenate([jnp.full((g.shape[0],), flag) for g, flag in lg])
+    else:
+        L, ldir = jnp.zeros((3, 1), dt), jnp.zeros((1,), bool)
+    # A bound on every finite primitive's distance from the origin.
+    ext = jnp.max(jnp.abs(eo), axis=(1, 2)) * 2.0 + jnp.max(jnp.abs(pp), axis=1) + prad
+    far = jnp.max(jnp.where(fin, ext, 0.0))
+    if ns:
+        far = jnp.maximum(far, jnp.max(jnp.max(jnp.abs(c), axis=0) * 2.0 + r))
+    far = jax.lax.stop_gradient(2.0 * far + 1.0)
     prims = Prims(
         c,
         r,
@@ -274,9 +231,12 @@ def build_prims(scene) -> tuple[Prims, dict]:
         jnp.transpose(eo, (1, 2, 0)),
         jnp.transpose(em, (1, 2, 0)),
         fin,
+        prad,
         jnp.asarray(solid),
         jnp.asarray(nface),
         L,
+        ldir,
+        far,
         mat,
         ms.transparency,
         jnp.max(ms.reflectivity, axis=1),
@@ -314,6 +274,10 @@ def miss(P: Prims, ns, ids, o, d):
     gp = -jnp.min(s, 0)
     feat = jnp.argmin(s, 0).astype(jnp.int32)
     gp = jnp.where(P.finite[pi], gp, -1.0)
+    # A disk: distance of the plane hit from its centre beyond the radius.
+    disk = P.prad[pi] > 0
+    gp = jnp.where(disk, V.norm(p - P.pp[:, pi]) - P.prad[pi], gp)
+    feat = jnp.where(disk, 0, feat)
     if P.solid.shape[0] and MAX_FACES:
         # A face of a convex solid (box, tetrahedron): the solid's own miss function,
         # t_near - t_far over its face planes, so that a crease between two of its
@@ -411,9 +375,11 @@ def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False
     tb = first_t(P, ns, ev.p2, o, d)
     shadow = ev.typ == SHADOW
     p = o + ta[None] * d
-    L = P.light[:, jnp.clip(ev.light, 0, P.light.shape[1] - 1)]
+    li = jnp.clip(ev.light, 0, P.light.shape[1] - 1)
+    L = P.light[:, li]
+    toward = V.vsel(P.ldir[li], V.normalize(-L), V.normalize(L - p))
     o2 = V.vsel(shadow, p, o)
-    d2 = V.vsel(shadow, V.normalize(L - p), d)
+    d2 = V.vsel(shadow, toward, d)
     m, f = miss(P, ns, jnp.where(ev.typ == MISS, ev.p1, ev.p2), o2, d2)
     depth = ev.typ == DEPTH
     G = jnp.where(depth, ta - tb, m)
@@ -425,20 +391,6 @@ def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False
 # ----------------------------------------------------------------------------
 
 
-def _box_face_index(scene, idx, o, d, t):
-    """Face ``2 axis + (side > 0)`` of box ``idx`` where ray ``o + t d`` meets it."""
-    bx = scene.boxes
-    R = euler_matrix(bx.rotation)[idx]  # (n, 3, 3)
-    c = (0.5 * (bx.lo + bx.hi))[idx].T
-    h = (0.5 * jnp.abs(bx.hi - bx.lo))[idx].T
-    p = o + t[None] * d
-    loc = jnp.einsum("nji,jn->in", R, p - c)  # R^T (p - c)
-    rel = jnp.abs(loc) / jnp.maximum(h, 1e-30)
-    ax = jnp.argmax(rel, 0)
-    side = jnp.take_along_axis(loc, ax[None], 0)[0] > 0
-    return 2 * ax.astype(jnp.int32) + side.astype(jnp.int32)
-
-
 def _search(scene, kinds, off, o, d, tmax=None):
     """Global id (-1: none) and distance of the first primitive along rays ``o, d``
     (closer than ``tmax`` when given)."""
@@ -447,11 +399,12 @@ def _search(scene, kinds, off, o, d, tmax=None):
     best_t = jnp.full((n,), jnp.inf, o.dtype)
     best_id = jnp.full((n,), -1, jnp.int32)
     for k in kinds:
-        t, idx = _closest_kind(k, ray, 0.0)
-        start, _, per = _kind_ids(off, k.name)
+        t, idx = closest_kind(k, ray, 0.0)
+        start, _, per = kind_ids(off, k)
         gid = start + per * idx
-        if k.name == "box":
-            gid = gid + _box_face_index(scene, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
+        if per > 1:  # which face of the primitive (a box's)
+            group = scene.prims[k.spec.field]
+            gid = gid + k.spec.edge_face(group, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
         better = t < best_t
         best_t = jnp.where(better, t, best_t)
         best_id = jnp.where(better, gid, best_id)
@@ -460,23 +413,32 @@ def _search(scene, kinds, off, o, d, tmax=None):
     return best_id, best_t
 
 
-def _kind_ids(off, name):
-    """Global ids of the primitives of kind ``name`` (as in :func:`raytrax.intersect.prepare`):
+def kind_ids(off, k) -> tuple[int, int, int]:
+    """Global ids of the primitives of search kind ``k`` (:func:`raytrax.intersect.prepare`):
     ``[start, end)``, ``per`` ids per primitive (a box's 6 faces)."""
-    nxt = {"sphere": "plane", "plane": "quad", "quad": "triangle", "triangle": "box", "box": "total"}[name]
-    return (0 if name == "sphere" else off[name]), off[nxt], (6 if name == "box" else 1)
+    return off["spans"][k.name]
 
 
 def id_offsets(scene) -> dict:
-    """First global id of each kind (see :class:`Prims`), ``ns`` and ``total``."""
-    ns = scene.spheres.center.shape[0]
-    off = {"ns": ns, "plane": ns}
-    off["quad"] = off["plane"] + scene.planes.point.shape[0]
-    off["triangle"] = off["quad"] + scene.quads.corners.shape[0]
-    nt = scene.triangles.vertices.shape[0] + 4 * scene.tetrahedra.center.shape[0]
-    nt += sum(m.faces.shape[0] for m in scene.meshes)
-    off["box"] = off["triangle"] + nt
-    off["total"] = off["box"] + 6 * scene.boxes.lo.shape[0]
+    """First global id of each kind (registry order, see :class:`Prims`), ``ns`` (the
+    number of spheres), ``total``, and ``spans``: ``(start, end, per)`` of each
+    search kind of :func:`raytrax.intersect.prepare` (``"triangle"``: the merged
+    triangle list)."""
+    off: dict = {}
+    spans: dict = {}
+    g = 0
+    for spec in KINDS:
+        n = spec.n_ids(scene.prims[spec.field])
+        off[spec.name] = g
+        if spec.triangle_family:
+            s0 = spans.get("triangle", (g, g, 1))[0]
+            spans["triangle"] = (s0, g + n, 1)
+        else:
+            spans[spec.name] = (g, g + n, spec.faces_per)
+        g += n
+    off["ns"] = off[KINDS[1].name]
+    off["total"] = g
+    off["spans"] = spans
     return off
 
 
@@ -487,7 +449,7 @@ class Records(NamedTuple):
     refr: jax.Array  # (D, M) the chain refracts (else reflects) at that hit
     first: jax.Array  # (D, L, M) first occluder between the hit and each light (-1: none; see object_key)
     last: jax.Array  # (D, L, M) last occluder
-    cell: jax.Array  # (D, M) the hard procedural pattern at the hit (0 / 1; see integrator._pattern_cell)
+    cell: jax.Array  # (D, M) the hard procedural pattern at the hit (0 / 1; see textures.pattern_cell)
 
 
 def object_key(P: Prims, ns, g):
@@ -498,21 +460,24 @@ def object_key(P: Prims, ns, g):
     return jnp.where(solid, ns + P.solid[pi], g)
 
 
-def _occluders(scene, kinds, off, p, hit):
+def _occluders(scene, kinds, off, P: Prims, p, hit):
     """First and last occluder ``(L, M)`` on the segments from points ``p (3, M)``
-    to each light (-1: none, or ``~hit``)."""
+    to each light (-1: none, or ``~hit``); a directional light's segment runs to
+    beyond every finite primitive."""
     eps = 1e-4 * (1.0 + jnp.max(jnp.abs(p), 0))
 
-    def one(Lpos):
+    def one(args):
+        Lpos, isd = args
         Lp = Lpos[:, None]
         Lv = Lp - p
-        dist = V.norm(Lv)
-        ld = V.normalize(Lv)
+        ld = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), V.normalize(jnp.broadcast_to(-Lp, p.shape)), V.normalize(Lv))
+        dist = jnp.where(isd, P.far + V.norm(p), V.norm(Lv))
+        end = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), p + dist[None] * ld, jnp.broadcast_to(Lp, p.shape))
         f, _ = _search(scene, kinds, off, p + eps[None] * ld, ld, dist - 2 * eps)
-        la, _ = _search(scene, kinds, off, jnp.broadcast_to(Lp, p.shape), -ld, dist - 2 * eps)
+        la, _ = _search(scene, kinds, off, end, -ld, dist - 2 * eps)
         return jnp.where(hit, f, -1), jnp.where(hit, la, -1)
 
-    return jax.lax.map(one, scene.lights.position)
+    return jax.lax.map(one, (P.light.T, P.ldir))
 
 
 def _hit_cell(scene, kinds, off, gid, o, d, t, mat):
@@ -523,12 +488,12 @@ def _hit_cell(scene, kinds, off, gid, o, d, t, mat):
         return jnp.zeros(gid.shape, jnp.int32)
     uv = jnp.zeros((2,) + gid.shape, o.dtype)
     for k in kinds:
-        start, end, per = _kind_ids(off, k.name)
+        start, end, per = kind_ids(off, k)
         sel = (gid >= start) & (gid < end)
         idx = jnp.where(sel, (gid - start) // per, 0)
-        _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, _no_hit, idx, o, d, jnp.where(sel, t, 0.0))
+        _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t, 0.0))
         uv = jnp.where(sel[None], uvk, uv)
-    return jnp.where(gid >= 0, _pattern_cell(mats, mat, uv), 0)
+    return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
 
 
 def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
@@ -537,7 +502,7 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     o, d = rays_through(scene.camera, xy, width, height)
     M = xy.shape[1]
     ns = off["ns"]
-    L = scene.lights.position.shape[0]
+    L = scene.n_lights
 
     def live(o, d, alive):
         gid, t = _search(scene, kinds, off, o, d)
@@ -547,7 +512,7 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
         if L:
             # Occluders as objects: a convex solid is its first face, whichever faces
             # the shadow segment crosses.
-            first, last = (object_key(P, ns, x) for x in _occluders(scene, kinds, off, p, hit))
+            first, last = (object_key(P, ns, x) for x in _occluders(scene, kinds, off, P, p, hit))
         else:
             first = last = jnp.zeros((0, M), jnp.int32)
         mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]

@@ -27,16 +27,16 @@ import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
-from . import _vec as V
-from . import textures as tx
+from . import vec as V
 from .camera import primary_rays, rays_through
-from .intersect import closest_hit, occluder_counts, prepare
-from .materials import fresnel_dielectric, refract
+from .intersect import EPS_REL, closest_hit, occluder_counts, prepare
+from .lights import LIGHTS
+from .materials import fresnel_dielectric, material_rows, refract
+from .textures import surface_color
 from .scene import Scene, Settings
 
 RAYS_PER_TILE = 16384
 SUBTILE = 4096
-EPS_REL = 1e-4
 # Reverse mode keeps only the inputs of each sub-tile's shading (and the values
 # named here) and recomputes the rest: storing every intermediate of every
 # bounce costs more in memory traffic than recomputing it.
@@ -52,80 +52,6 @@ class RenderOptions:
     subtile: int = SUBTILE
     jitter: bool = False
     devices: int = 1
-
-
-def _gather_rows(table, idx):
-    """``table (M, k)`` rows at ``idx (n,)`` as ``(k, n)`` (``(M,)`` tables: ``(n,)``)."""
-    return V.take_rows(table, idx)
-
-
-def _material_rows(mats, mat, names):
-    """The float material fields ``names`` at per-ray material ids ``mat (n,)``:
-    ``{name: (n,) or (k, n)}``. One matrix product of the stacked ``(K, M)``
-    table with a one-hot ``(M, n)``: a single materialised read (XLA:CPU would
-    otherwise repeat per-field select chains inside every consumer), whose
-    transpose is again one product instead of a scatter-add. Exact: one non-zero
-    term per sum."""
-    cols = [getattr(mats, nm) for nm in names]
-    tab = jnp.concatenate([c[:, None] if c.ndim == 1 else c for c in cols], 1)  # (M, K)
-    M = tab.shape[0]
-    if M == 1:
-        rows = jnp.broadcast_to(tab[0][:, None], (tab.shape[1],) + mat.shape)
-    else:
-        onehot = (mat[None, :] == jnp.arange(M, dtype=mat.dtype)[:, None]).astype(tab.dtype)  # (M, n)
-        rows = jnp.dot(tab.T, onehot, precision=jax.lax.Precision.HIGHEST)  # (K, n)
-    out, j = {}, 0
-    for nm, c in zip(names, cols):
-        if c.ndim == 1:
-            out[nm] = rows[j]
-            j += 1
-        else:
-            out[nm] = rows[j : j + c.shape[1]]
-            j += c.shape[1]
-    return out
-
-
-def _pattern_fraction(mats, k, rows, uv, wuv, filtered):
-    """Fraction ``(n,)`` of the footprint on ``color2`` of each ray's checker or stripes
-    (0 for other texture kinds ``k (n,)``); ``rows``: ``tex_scale`` and, with stripes,
-    ``tex_direction``; ``wuv (2, n)``: footprint widths in uv units."""
-    kinds = mats.kinds_present
-    frac = jnp.zeros_like(uv[0])
-    if tx.CHECKER in kinds:
-        frac = jnp.where(k == tx.CHECKER, tx.checker(uv, wuv, rows["tex_scale"], filtered), frac)
-    if tx.STRIPES in kinds:
-        frac = jnp.where(k == tx.STRIPES, tx.stripes(uv, wuv, rows["tex_scale"], rows["tex_direction"], filtered), frac)
-    return frac
-
-
-def _pattern_cell(mats, mat, uv):
-    """Which colour the *hard* (unfiltered) procedural pattern shows at ``uv (2, n)``
-    on materials ``mat (n,)``: 1 for ``color2``, else 0 (also for materials without a
-    checker or stripes). Edge gradients cut edge pieces where it changes."""
-    if tx.CHECKER not in mats.kinds_present and tx.STRIPES not in mats.kinds_present:
-        return jnp.zeros(mat.shape, jnp.int32)
-    rows = _material_rows(mats, mat, ("tex_scale", "tex_direction"))
-    k = _gather_rows(mats.tex_kind, mat)
-    return _pattern_fraction(mats, k, rows, uv, jnp.zeros_like(uv), False).astype(jnp.int32)
-
-
-def _surface_color(mats, mat, uv, rate, width, filtered, rows=None):
-    kinds = mats.kinds_present
-    if rows is None:
-        rows = _material_rows(mats, mat, ("color", "tex_scale", "tex_color2", "tex_direction") if kinds else ("color",))
-    base = rows["color"]
-    if not kinds:
-        return base
-    k = _gather_rows(mats.tex_kind, mat)
-    frac = _pattern_fraction(mats, k, rows, uv, rate * width[None], filtered)
-    c2 = rows["tex_color2"]
-    color = base + (c2 - base) * frac[None]
-    if tx.IMAGE in kinds:
-        img_id = _gather_rows(mats.tex_image, mat)
-        for j, img in enumerate(mats.images):
-            sel = (k == tx.IMAGE) & (img_id == j)
-            color = jnp.where(sel[None], base * tx.bilinear(img, uv), color)
-    return color
 
 
 def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool, sel=None):
@@ -162,14 +88,20 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
         names += ("diffuse", "specular", "shininess", "ambient")
     if mats.kinds_present:
         names += ("tex_scale", "tex_color2", "tex_direction")
-    rows = _material_rows(mats, mat, names)
-    color = _surface_color(mats, mat, hit.uv, hit.rate, footprint, st.filter_textures, rows)
+    rows = material_rows(mats, mat, names)
+    color = surface_color(mats, mat, hit.uv, hit.rate, footprint, st.filter_textures, rows)
     T = rows["transparency"]
     R = rows["reflectivity"]
     ior = rows["ior"]
 
     # --- direct light -----------------------------------------------------
-    L = scene.lights.position.shape[0]
+    # Every light of every type, in registry order (raytrax.lights.LIGHTS).
+    samples = [
+        spec.sample(scene.light_sets[spec.field], j, p_out)
+        for spec in LIGHTS
+        for j in range(spec.count(scene.light_sets[spec.field]))
+    ]
+    L = len(samples)
     n = o.shape[1]
     local = jnp.zeros_like(o)
 
@@ -179,16 +111,14 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     if L:
         # One light at a time on (n,) / (3, n) arrays: no (3, L, n) broadcasts and no
         # reductions over short axes (XLA:CPU runs those, and their transposes, slowly).
-        Lv, dist, ldir, cosl, lit = [], [], [], [], []
-        for l in range(L):
-            v = scene.lights.position[l][:, None] - p_out
-            Lv.append(v)
-            dist.append(V.norm(v))
-            ldir.append(V.normalize(v))
+        dist, ldir, cosl, lit = [], [], [], []
+        for l, smp in enumerate(samples):
+            dist.append(smp.distance)
+            ldir.append(smp.direction)
             cosl.append(V.dot(n_s, ldir[l]))
             lit.append((cosl[l] > 0) & valid & (True if sel is None else carries(l)))
         M = mats.color.shape[0]
-        I = scene.lights.intensity
+        I = [smp.strength for smp in samples]
         classic = st.shading == "classic"
 
         def shadow(p0, dirn, tmax):
@@ -229,7 +159,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
                 local = local + I[l][:, None] * s[None] * (diff[None] * color + spec[None])
             else:
                 vis = jnp.logical_not(sh) & lit[l]
-                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * V.safe_div(1.0, dist[l] * dist[l]), 0.0)
+                g = jnp.where(vis, jnp.maximum(cosl[l], 0.0) * samples[l].falloff, 0.0)
                 E = E + I[l][:, None] * g[None]
         if not classic:
             local = ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * E

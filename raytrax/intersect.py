@@ -19,22 +19,25 @@ import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
-from . import _vec as V
 from . import bvh as B
 from . import shapes as S
+from . import vec as V
+from .shapes.triangles import tri_hit, tri_soa, tri_t
 
 BLOCK = 32
+EPS_REL = 1e-4  # offset of spawned rays from their surface, relative to 1 + max |coordinate|
 INF = float("inf")
 
 
 class Kind(NamedTuple):
-    name: str
+    name: str  # the kind's name; "triangle" for the merged triangle list
     soa: dict  # stop-gradient (N,) component arrays
     material: jax.Array  # (N,) int
     tfun: Callable
     hit: Callable  # (idx (n,), o, d, t0) -> (t, n, uv, rate)
     crossings: Callable | None = None  # (ray, P, tmax) -> (n, B) surface crossings; None: one per hit
     accel: B.Accel | None = None  # triangle BVH search arrays (see raytrax.bvh); None: brute force
+    spec: S.KindSpec | None = None  # the registry entry; None for the merged triangle list
 
 
 class Hit(NamedTuple):
@@ -51,66 +54,42 @@ def _ng(tree):
 
 
 def prepare(scene) -> list[Kind]:
-    """The kinds present in ``scene`` with their search arrays and hit functions.
-    Called inside the traced render: triangle-based kinds (triangles,
-    tetrahedra, meshes) are merged into one triangle list here."""
+    """The kinds present in ``scene`` with their search arrays and hit functions, in
+    registry order (:data:`raytrax.shapes.KINDS`). Called inside the traced render:
+    triangle-family kinds (triangles, tetrahedra, meshes) are merged into one
+    triangle list, searched at the place of the first of them."""
     kinds = []
-    sp = scene.spheres
-    if sp.center.shape[0]:
-        kinds.append(
-            Kind(
-                "sphere",
-                _ng(S.sphere_soa(sp)),
-                sp.material,
-                S.sphere_t,
-                lambda i, o, d, t0: S.sphere_hit(sp.center[i].T, sp.radius[i], o, d, t0),
-                S.sphere_crossings,
-            )
-        )
-    pl = scene.planes
-    if pl.point.shape[0]:
-        kinds.append(
-            Kind(
-                "plane",
-                _ng(S.plane_soa(pl)),
-                pl.material,
-                S.plane_t,
-                lambda i, o, d, t0: S.plane_hit(pl.point[i].T, pl.normal[i].T, o, d, t0),
-            )
-        )
-    qd = scene.quads
-    if qd.corners.shape[0]:
-
-        def qhit(i, o, d, t0):
-            c = qd.corners[i]
-            return S.quad_hit(c[:, 0].T, c[:, 1].T, c[:, 2].T, c[:, 3].T, o, d, t0)
-
-        kinds.append(Kind("quad", _ng(S.quad_soa(qd)), qd.material, S.quad_t, qhit))
-    T, M = scene.merged_triangles()
-    if T.shape[0]:
-
-        def thit(i, o, d, t0):
-            v = T[i]
-            return S.tri_hit(v[:, 0].T, v[:, 1].T, v[:, 2].T, o, d, t0)
-
-        soa = _ng(S.tri_soa(T[:, 0], T[:, 1], T[:, 2]))
-        bvh = getattr(scene, "bvh", None)
-        acc = None
-        if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
-            acc = B.prepare(bvh, soa)
-        kinds.append(Kind("triangle", soa, M, S.tri_t, thit, None, acc))
-    bx = scene.boxes
-    if bx.lo.shape[0]:
-        Rb = S.euler_matrix(bx.rotation).reshape(-1, 9)  # per box, not per ray
-        cb = 0.5 * (bx.lo + bx.hi)
-        hb = 0.5 * jnp.abs(bx.hi - bx.lo)
-
-        def bhit(i, o, d, t0):
-            P = _gather(jnp.concatenate([Rb, cb, hb], 1), i)
-            return S.box_hit(P[9:12], P[12:15], [P[0:3], P[3:6], P[6:9]], o, d, t0)
-
-        kinds.append(Kind("box", _ng(S.box_soa(bx)), bx.material, S.box_t, bhit, S.box_crossings))
+    merged = False
+    for spec in S.KINDS:
+        group = getattr(scene, spec.field)
+        if spec.triangle_family:
+            if not merged:
+                merged = True
+                tri = _triangle_kind(scene)
+                if tri is not None:
+                    kinds.append(tri)
+            continue
+        if spec.count(group):
+            part = spec.search(group)
+            kinds.append(Kind(spec.name, _ng(part.soa), part.material, part.tfun, part.hit, part.crossings, None, spec))
     return kinds
+
+
+def _triangle_kind(scene) -> Kind | None:
+    T, M = scene.merged_triangles()
+    if not T.shape[0]:
+        return None
+
+    def thit(i, o, d, t0):
+        v = T[i]
+        return tri_hit(v[:, 0].T, v[:, 1].T, v[:, 2].T, o, d, t0)
+
+    soa = _ng(tri_soa(T[:, 0], T[:, 1], T[:, 2]))
+    bvh = getattr(scene, "bvh", None)
+    acc = None
+    if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
+        acc = B.prepare(bvh, soa)
+    return Kind("triangle", soa, M, tri_t, thit, None, acc)
 
 
 def _blocks(soa, extra=None):
@@ -124,7 +103,7 @@ def _blocks(soa, extra=None):
     return out, valid, base
 
 
-def _closest_kind(k: Kind, ray, tmin):
+def closest_kind(k: Kind, ray, tmin):
     """Per ray: nearest distance (inf on a miss) and primitive index of one kind."""
     if k.accel is not None:
         return B.closest(k.accel, ray, tmin)
@@ -150,27 +129,7 @@ def _closest_kind(k: Kind, ray, tmin):
     return tb, ib
 
 
-def _gather(table, i):
-    """Rows ``table[i]`` of ``table (N, k)`` at ``i (n,)`` as a list of ``k`` arrays ``(n,)``.
-
-    For a few primitives this is a chain of selects (elementwise; its transpose is a
-    masked sum instead of a scatter-add), for one a broadcast; else a gather per
-    column (struct of arrays)."""
-    N, k = table.shape
-    if N == 1:
-        return [jnp.broadcast_to(table[0, j], i.shape) for j in range(k)]
-    if N <= V.SELECT_GATHER:
-        out = []
-        for j in range(k):
-            v = jnp.broadcast_to(table[0, j], i.shape)
-            for m in range(1, N):
-                v = jnp.where(i == m, table[m, j], v)
-            out.append(v)
-        return out
-    return [table[:, j].at[i].get(mode="promise_in_bounds") for j in range(k)]
-
-
-def _no_hit(idx, o, d, t0):
+def no_hit(idx, o, d, t0):
     z = jnp.zeros_like(t0)
     return z, jnp.zeros_like(o), jnp.zeros((2,) + z.shape, z.dtype), jnp.zeros((2,) + z.shape, z.dtype)
 
@@ -190,7 +149,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             jnp.zeros((n,), jnp.int32),
         )
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
-    ts, ids = zip(*[_closest_kind(k, ray, 0.0) for k in kinds])
+    ts, ids = zip(*[closest_kind(k, ray, 0.0) for k in kinds])
     ts = jnp.stack(ts)
     which = jnp.argmin(ts, 0)
     t0 = jnp.min(ts, 0)
@@ -210,7 +169,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             # Under a cond: skipped when no ray hit this kind, and its inputs and outputs
             # are materialised (XLA:CPU would otherwise fuse the search into every
             # consumer of the recomputation and repeat it per output component).
-            tk, nk, uvk, rk = jax.lax.cond(jnp.any(sel), k.hit, _no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
+            tk, nk, uvk, rk = jax.lax.cond(jnp.any(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
             t = jnp.where(sel, tk, t)
             nrm = jnp.where(sel[None], nk, nrm)
             uv = jnp.where(sel[None], uvk, uv)

@@ -24,10 +24,11 @@ reflectivity`` (RGB), ``F`` the unpolarised Fresnel reflectance:
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from . import _vec as V
+from . import vec as V
 
 
 class Materials(eqx.Module):
@@ -104,3 +105,29 @@ def refract(d, n, eta, cos_t):
     """
     g = eta[None] * d - (eta * V.dot(d, n) + cos_t)[None] * n
     return V.normalize(g)
+
+
+def material_rows(mats, mat, names):
+    """The float material fields ``names`` at per-ray material ids ``mat (n,)``:
+    ``{name: (n,) or (k, n)}``. One matrix product of the stacked ``(K, M)``
+    table with a one-hot ``(M, n)``: a single materialised read (XLA:CPU would
+    otherwise repeat per-field select chains inside every consumer), whose
+    transpose is again one product instead of a scatter-add. Exact: one non-zero
+    term per sum."""
+    cols = [getattr(mats, nm) for nm in names]
+    tab = jnp.concatenate([c[:, None] if c.ndim == 1 else c for c in cols], 1)  # (M, K)
+    M = tab.shape[0]
+    if M == 1:
+        rows = jnp.broadcast_to(tab[0][:, None], (tab.shape[1],) + mat.shape)
+    else:
+        onehot = (mat[None, :] == jnp.arange(M, dtype=mat.dtype)[:, None]).astype(tab.dtype)  # (M, n)
+        rows = jnp.dot(tab.T, onehot, precision=jax.lax.Precision.HIGHEST)  # (K, n)
+    out, j = {}, 0
+    for nm, c in zip(names, cols):
+        if c.ndim == 1:
+            out[nm] = rows[j]
+            j += 1
+        else:
+            out[nm] = rows[j : j + c.shape[1]]
+            j += c.shape[1]
+    return out

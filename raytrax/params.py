@@ -18,7 +18,8 @@ name                                   shape         meaning
 ``camera.position`` / ``.look_at``     ``(3,)``      camera centre / target point
 ``camera.up``                          ``(3,)``      up vector
 ``camera.fov``                         ``()``        vertical field of view, degrees
-``light[i].position`` / ``.intensity`` ``(3,)``      the i-th ``[[light]]``
+``light[i].position`` / ``.intensity`` ``(3,)``      the i-th ``[[light]]``, a point light
+``light[i].direction`` / ``.irradiance`` ``(3,)``    a directional light
 ``material.NAME.color``                ``(3,)``      colour / albedo
 ``material.NAME.ambient`` ...          ``()``        ``ambient``, ``diffuse``, ``specular``,
                                                      ``shininess``, ``transparency``, ``ior``
@@ -32,6 +33,8 @@ name                                   shape         meaning
 ``object[i].corners``                  ``(4, 3)``    quad
 ``object[i].vertices``                 ``(3, 3)``    triangle; ``(V, 3)`` for a mesh
 ``object[i].center``, ``.size``        ``(3,)``,()   tetrahedron
+``object[i].center``, ``.normal``,     ``(3,)``,()   disk
+``.radius``
 ``object[i].min``, ``.max``            ``(3,)``      box corners before rotation
 ``object[i].rotation``                 ``(3,)``      box Euler angles, degrees
 ``render.background``                  ``(3,)``      radiance of escaped rays
@@ -63,6 +66,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import textures as tx
+from .lights import BY_NAME as LIGHT_BY_NAME
+from .shapes import BY_NAME
 
 __all__ = ["parameters", "with_parameters", "parameter_names"]
 
@@ -107,9 +112,10 @@ def _slots(scene, need_textures: bool = True) -> dict[str, _Slot]:
         S[f"camera.{f}"] = _Slot(lambda s, f=f: getattr(s.camera, f), None, (3,))
     S["camera.fov"] = _Slot(lambda s: s.camera.fov, None, ())
 
-    for i in range(scene.lights.position.shape[0]):
-        S[f"light[{i}].position"] = _Slot(lambda s: s.lights.position, i, (3,))
-        S[f"light[{i}].intensity"] = _Slot(lambda s: s.lights.intensity, i, (3,), True)
+    for j, (typ, k) in enumerate(scene.light_index):
+        spec = LIGHT_BY_NAME[typ]
+        for key, get, row, shape, rgb in spec.slots(scene.light_sets[spec.field], k):
+            S[f"light[{j}].{key}"] = _Slot(lambda s, f=spec.field, get=get: get(s.light_sets[f]), row, shape, rgb)
 
     mats = scene.materials
     info = _texture_info(scene) if need_textures else None
@@ -141,28 +147,9 @@ def _slots(scene, need_textures: bool = True) -> dict[str, _Slot]:
             S[f"{p}.texture.image"] = _Slot(lambda s, j=j: s.materials.images[j], None, tuple(mats.images[j].shape))
 
     for i, (kind, k) in enumerate(scene.object_index):
-        o = f"object[{i}]"
-        if kind == "sphere":
-            S[f"{o}.center"] = _Slot(lambda s: s.spheres.center, k, (3,))
-            S[f"{o}.radius"] = _Slot(lambda s: s.spheres.radius, k, ())
-        elif kind == "plane":
-            S[f"{o}.point"] = _Slot(lambda s: s.planes.point, k, (3,))
-            S[f"{o}.normal"] = _Slot(lambda s: s.planes.normal, k, (3,))
-        elif kind == "quad":
-            S[f"{o}.corners"] = _Slot(lambda s: s.quads.corners, k, (4, 3))
-        elif kind == "triangle":
-            S[f"{o}.vertices"] = _Slot(lambda s: s.triangles.vertices, k, (3, 3))
-        elif kind == "tetrahedron":
-            S[f"{o}.center"] = _Slot(lambda s: s.tetrahedra.center, k, (3,))
-            S[f"{o}.size"] = _Slot(lambda s: s.tetrahedra.size, k, ())
-        elif kind == "box":
-            S[f"{o}.min"] = _Slot(lambda s: s.boxes.lo, k, (3,))
-            S[f"{o}.max"] = _Slot(lambda s: s.boxes.hi, k, (3,))
-            S[f"{o}.rotation"] = _Slot(lambda s: s.boxes.rotation, k, (3,))
-        elif kind == "mesh":
-            S[f"{o}.vertices"] = _Slot(lambda s, k=k: s.meshes[k].vertices, None, tuple(scene.meshes[k].vertices.shape))
-        else:  # pragma: no cover - a new kind without names
-            raise NotImplementedError(f"raytrax.parameters: object kind {kind!r} has no parameter names")
+        spec = BY_NAME[kind]
+        for key, get, row, shape in spec.slots(scene.prims[spec.field], k):
+            S[f"object[{i}].{key}"] = _Slot(lambda s, f=spec.field, get=get: get(s.prims[f]), row, shape)
 
     S["render.background"] = _Slot(lambda s: s.environment.background, None, (3,), True)
     S["render.ambient"] = _Slot(lambda s: s.environment.ambient, None, (3,), True)

@@ -14,6 +14,7 @@ them from TOML files with :func:`raytrax.load_scene`.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 
 import equinox as eqx
@@ -22,12 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from . import bvh as _bvh
+from . import bvh as bvh_mod
 from . import textures as tx
 from .camera import Camera
-from .lights import PointLights
+from .lights import LIGHTS
+from .lights import BY_FIELD as LIGHT_BY_FIELD
+from .lights import BY_NAME as LIGHT_BY_NAME
 from .materials import Materials
-from .shapes import Boxes, Mesh, Planes, Quads, Spheres, Tetrahedra, Triangles
+from .shapes import BY_FIELD, BY_NAME, KINDS
 
 SHADING_MODELS = ("classic", "physical")
 
@@ -79,41 +82,54 @@ class Environment(eqx.Module):
 class Scene(eqx.Module):
     """Everything :func:`raytrax.render` needs.
 
+    Primitives are held per kind (``scene.spheres``, ``scene.boxes``, ... one
+    attribute per entry of the kind registry :data:`raytrax.shapes.KINDS`, stored
+    in ``prims``), lights per type (``scene.lights`` for point lights,
+    ``scene.directional_lights``; stored in ``light_sets``).
     ``object_index`` maps the i-th object of the scene description to
-    ``(kind, index within kind)``; ``material_names`` names the rows of the
-    material table; ``light`` rows follow the description's order. ``bvh`` is
-    the topology of the triangle acceleration structure (:mod:`raytrax.bvh`),
-    built by :class:`SceneBuilder` for scenes with many triangles.
+    ``(kind, index within kind)``, ``light_index`` the j-th light to ``(type,
+    index within type)``; ``material_names`` names the rows of the material table.
+    ``bvh`` is the topology of the triangle acceleration structure
+    (:mod:`raytrax.bvh`), built by :class:`SceneBuilder` for scenes with many
+    triangles.
     """
 
     camera: Camera
-    lights: PointLights
     materials: Materials
     environment: Environment
-    spheres: Spheres
-    planes: Planes
-    quads: Quads
-    triangles: Triangles
-    tetrahedra: Tetrahedra
-    boxes: Boxes
-    meshes: tuple
+    prims: dict
+    light_sets: dict
     settings: Settings = eqx.field(static=True)
     object_index: tuple = eqx.field(static=True, default=())
+    light_index: tuple = eqx.field(static=True, default=())
     material_names: tuple = eqx.field(static=True, default=())
     name: str = eqx.field(static=True, default="scene")
-    bvh: _bvh.TriangleBVH | None = None  # leaf order of the merged triangle list (raytrax.bvh); None: brute force
+    bvh: bvh_mod.TriangleBVH | None = None  # leaf order of the merged triangle list (raytrax.bvh); None: brute force
+
+    def __getattr__(self, name):
+        # Only reached when normal lookup fails: the kinds' and light types' fields.
+        if name in BY_FIELD:
+            return self.prims[name]
+        if name in LIGHT_BY_FIELD:
+            return self.light_sets[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def dtype(self):
         return self.camera.position.dtype
 
     def merged_triangles(self):
-        """Every triangle-based primitive as one list: ``vertices (T, 3, 3)`` and
-        ``material (T,)``, in the order triangles, tetrahedron faces, mesh faces
-        (the order of intersection indices and of :mod:`raytrax.bvh`)."""
-        parts = [(self.triangles.vertices, self.triangles.material), self.tetrahedra.triangles()]
-        parts += [m.triangles() for m in self.meshes]
+        """Every triangle-family primitive as one list: ``vertices (T, 3, 3)`` and
+        ``material (T,)``, in registry order (triangles, tetrahedron faces, mesh
+        faces: the order of intersection indices and of :mod:`raytrax.bvh`)."""
+        parts = [k.triangles(self.prims[k.field]) for k in KINDS if k.triangle_family]
+        parts = [p for p in parts if p is not None]
         return jnp.concatenate([t for t, _ in parts], 0), jnp.concatenate([m for _, m in parts], 0)
+
+    @property
+    def n_lights(self) -> int:
+        """Number of lights of every type."""
+        return sum(s.count(self.light_sets[s.field]) for s in LIGHTS)
 
     def replace_settings(self, **kw) -> Scene:
         """A copy with some static render settings changed."""
@@ -218,11 +234,17 @@ class SceneBuilder:
         self._camera = dict(position=pos, look_at=at, up=upv, fov=fov)
         return self
 
-    def light(self, position, intensity=(1.0, 1.0, 1.0)):
-        i = len(self._lights)
-        self._lights.append(
-            (_arr(position, None, (3,), f"light[{i}].position"), _rgb(intensity, f"light[{i}].intensity"))
-        )
+    def add_light(self, type: str, **params):
+        """Add a light of registered ``type`` (``"point"``, ``"directional"``; see
+        :data:`raytrax.lights.LIGHTS`) with its parameters as keywords."""
+        j = len(self._lights)
+        spec = LIGHT_BY_NAME.get(type)
+        if spec is None:
+            raise ValueError(f"light[{j}].type: expected one of {', '.join(LIGHT_BY_NAME)}, got {type!r}")
+        unknown = set(params) - {k.name for k in spec.keys}
+        if unknown:
+            raise ValueError(f"light[{j}]: unknown key(s) {sorted(unknown)} for a {type} light")
+        self._lights.append((type, spec.validate(params, f"light[{j}]")))
         return self
 
     def material(
@@ -270,85 +292,18 @@ class SceneBuilder:
         return self
 
     # -- objects ------------------------------------------------------------
-    def _add(self, kind, material, **params):
+    def add(self, kind: str, material: str, **params):
+        """Add an object of registered ``kind`` (``"sphere"``, ``"disk"``, ...; see
+        :data:`raytrax.shapes.KINDS`) with its parameters as keywords (the scene
+        file's keys)."""
         i = len(self._objects)
+        spec = BY_NAME.get(kind)
+        if spec is None:
+            raise ValueError(f"object[{i}].type: expected one of {', '.join(BY_NAME)}, got {kind!r}")
         if not isinstance(material, str):
             raise ValueError(f"object[{i}].material: expected a material name, got {material!r}")
-        self._objects.append((kind, params, material))
+        self._objects.append((kind, spec.validate(params, f"object[{i}]"), material))
         return self
-
-    def sphere(self, center, radius, material):
-        i = len(self._objects)
-        r = float(radius)
-        if not r > 0:
-            raise ValueError(f"object[{i}].radius: expected a positive number, got {radius}")
-        return self._add("sphere", material, center=_arr(center, None, (3,), f"object[{i}].center"), radius=r)
-
-    def plane(self, point, normal, material):
-        i = len(self._objects)
-        n = _arr(normal, None, (3,), f"object[{i}].normal")
-        if np.linalg.norm(n) == 0:
-            raise ValueError(f"object[{i}].normal: expected a non-zero vector")
-        return self._add("plane", material, point=_arr(point, None, (3,), f"object[{i}].point"), normal=n)
-
-    def quad(self, corners, material):
-        i = len(self._objects)
-        c = _arr(corners, None, (4, 3), f"object[{i}].corners")
-        n = np.cross(c[2] - c[0], c[3] - c[1])
-        size = max(np.ptp(c, axis=0).max(), 1e-300)
-        if np.linalg.norm(n) <= 1e-9 * size * size:
-            raise ValueError(
-                f"object[{i}].corners: expected a convex quad with non-zero area and corners in "
-                f"order around its edge, got a degenerate or self-intersecting quad"
-            )
-        n = n / np.linalg.norm(n)
-        off = np.abs((c - c[0]) @ n).max()
-        if off > 1e-6 * size:
-            raise ValueError(f"object[{i}].corners: the four corners are not coplanar (off by {off:.3g})")
-        for k in range(4):
-            e = c[(k + 1) % 4] - c[k]
-            if np.dot(np.cross(n, e), c[(k + 2) % 4] - c[k]) < -1e-9 * size * size:
-                raise ValueError(f"object[{i}].corners: expected a convex quad with corners in order around its edge")
-        return self._add("quad", material, corners=c)
-
-    def triangle(self, vertices, material):
-        i = len(self._objects)
-        v = _arr(vertices, None, (3, 3), f"object[{i}].vertices")
-        size = max(np.ptp(v, axis=0).max(), 1e-300)
-        if np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0])) <= 1e-9 * size * size:
-            raise ValueError(f"object[{i}].vertices: degenerate triangle (zero area)")
-        return self._add("triangle", material, vertices=v)
-
-    def tetrahedron(self, center, size, material):
-        i = len(self._objects)
-        s = float(size)
-        if not s > 0:
-            raise ValueError(f"object[{i}].size: expected a positive number, got {size}")
-        return self._add("tetrahedron", material, center=_arr(center, None, (3,), f"object[{i}].center"), size=s)
-
-    def box(self, min, max, material, rotation=(0.0, 0.0, 0.0)):
-        i = len(self._objects)
-        lo = _arr(min, None, (3,), f"object[{i}].min")
-        hi = _arr(max, None, (3,), f"object[{i}].max")
-        if np.any(hi <= lo):
-            raise ValueError(
-                f"object[{i}].max: expected every component greater than min, got min={lo.tolist()} max={hi.tolist()}"
-            )
-        return self._add("box", material, lo=lo, hi=hi, rotation=_arr(rotation, None, (3,), f"object[{i}].rotation"))
-
-    def mesh(self, vertices, faces, material):
-        i = len(self._objects)
-        v = np.asarray(vertices, dtype=np.float64)
-        f = np.asarray(faces)
-        if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < 3:
-            raise ValueError(f"object[{i}].vertices: expected a (V, 3) array with V >= 3, got shape {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 1 or not np.issubdtype(f.dtype, np.integer):
-            raise ValueError(f"object[{i}].faces: expected an integer (F, 3) array, got shape {f.shape} of {f.dtype}")
-        if f.min() < 0 or f.max() >= v.shape[0]:
-            raise ValueError(f"object[{i}].faces: vertex index out of range [0, {v.shape[0]})")
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"object[{i}].vertices: expected finite numbers")
-        return self._add("mesh", material, vertices=v, faces=f.astype(np.int32))
 
     # -- build --------------------------------------------------------------
     def build(self, dtype=None) -> Scene:
@@ -425,61 +380,90 @@ class SceneBuilder:
             kinds_present=tuple(sorted(k for k in kinds if k != tx.NONE)),
         )
 
-        groups: dict[str, list] = {k: [] for k in ("sphere", "plane", "quad", "triangle", "tetrahedron", "box", "mesh")}
+        groups: dict[str, list] = {k.name: [] for k in KINDS}
         index = []
         for kind, p, m in self._objects:
             index.append((kind, len(groups[kind])))
             groups[kind].append((p, mid[m]))
-
-        def col(kind, key, shape):
-            return F([p[key] for p, _ in groups[kind]], shape)
-
-        def mcol(kind):
-            return I([m for _, m in groups[kind]])
-
-        spheres = Spheres(col("sphere", "center", (-1, 3)), col("sphere", "radius", (-1,)), mcol("sphere"))
-        planes = Planes(col("plane", "point", (-1, 3)), col("plane", "normal", (-1, 3)), mcol("plane"))
-        quads = Quads(col("quad", "corners", (-1, 4, 3)), mcol("quad"))
-        triangles = Triangles(col("triangle", "vertices", (-1, 3, 3)), mcol("triangle"))
-        tetra = Tetrahedra(
-            col("tetrahedron", "center", (-1, 3)), col("tetrahedron", "size", (-1,)), mcol("tetrahedron")
-        )
-        boxes = Boxes(
-            col("box", "lo", (-1, 3)), col("box", "hi", (-1, 3)), col("box", "rotation", (-1, 3)), mcol("box")
-        )
-        meshes = tuple(
-            Mesh(F(p["vertices"]), jnp.asarray(p["faces"]), jnp.asarray(m, dtype=jnp.int32)) for p, m in groups["mesh"]
-        )
+        prims = {k.field: k.build(groups[k.name], F, I) for k in KINDS}
 
         splits = any(m.transparency > 0 for m in mats)
         settings = Settings(shading=self.shading, branches=2 if splits else 1, **self.render)
-        if self._lights:
-            lp = F([p for p, _ in self._lights], (-1, 3))
-            li = F([i for _, i in self._lights], (-1, 3))
-        else:
-            lp = jnp.zeros((0, 3), dt)
-            li = jnp.zeros((0, 3), dt)
+        lgroups: dict[str, list] = {s.name: [] for s in LIGHTS}
+        light_index = []
+        for typ, p in self._lights:
+            light_index.append((typ, len(lgroups[typ])))
+            lgroups[typ].append(p)
+        light_sets = {s.field: s.build(lgroups[s.name], F) for s in LIGHTS}
         c = self._camera
         scene = Scene(
             camera=Camera(F(c["position"]), F(c["look_at"]), F(c["up"]), F(c["fov"])),
-            lights=PointLights(lp, li),
             materials=materials,
             environment=Environment(F(self.background), F(self.ambient)),
-            spheres=spheres,
-            planes=planes,
-            quads=quads,
-            triangles=triangles,
-            tetrahedra=tetra,
-            boxes=boxes,
-            meshes=meshes,
+            prims=prims,
+            light_sets=light_sets,
             settings=settings,
             object_index=tuple(index),
+            light_index=tuple(light_index),
             material_names=tuple(names),
             name=self.name,
         )
         # Triangle acceleration structure (raytrax.bvh) over the merged triangle list
         # (triangles, tetrahedron faces, mesh faces), above the brute-force threshold.
-        n_tri = triangles.vertices.shape[0] + 4 * tetra.center.shape[0] + sum(m.faces.shape[0] for m in meshes)
-        if n_tri > _bvh.MIN_TRIANGLES:
-            scene = dataclasses.replace(scene, bvh=_bvh.for_scene(scene))
+        n_tri = sum(k.n_ids(prims[k.field]) for k in KINDS if k.triangle_family)
+        if n_tri > bvh_mod.MIN_TRIANGLES:
+            scene = dataclasses.replace(scene, bvh=bvh_mod.for_scene(scene))
         return scene
+
+
+def _builder_method(spec, args, optional, doc):
+    """A :class:`SceneBuilder` method for a registered kind or light type: positional
+    ``args``, then (objects) the material, then keyword ``optional`` parameters."""
+    is_light = not hasattr(spec, "triangle_family")
+    params = [inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+    params += [inspect.Parameter(a, inspect.Parameter.POSITIONAL_OR_KEYWORD) for a in args]
+    if not is_light:
+        params.append(inspect.Parameter("material", inspect.Parameter.POSITIONAL_OR_KEYWORD))
+    for k in optional:
+        params.append(inspect.Parameter(k.name, inspect.Parameter.POSITIONAL_OR_KEYWORD, default=k.default))
+    sig = inspect.Signature(params)
+
+    def method(self, *a, **kw):
+        bound = sig.bind(self, *a, **kw)
+        bound.apply_defaults()
+        values = dict(bound.arguments)
+        values.pop("self")
+        if is_light:
+            return self.add_light(spec.name, **values)
+        material = values.pop("material")
+        return self.add(spec.name, material, **values)
+
+    method.__signature__ = sig  # type: ignore[attr-defined]
+    method.__name__ = method.__qualname__ = spec.builder if is_light else spec.name
+    method.__doc__ = doc
+    return method
+
+
+def _install_builder_methods():
+    for spec in KINDS:
+        keys = spec.keys or ()
+        args = [k.name for k in keys if k.default is None] or list(spec.builder_args)
+        optional = [k for k in keys if k.default is not None]
+        shapes = ", ".join(f"``{k.name}`` {k.shape}" for k in keys) or "``vertices (V, 3)``, ``faces (F, 3)`` int"
+        doc = (
+            f"Add a {spec.name} (:class:`{spec.module.__module__}.{spec.module.__name__}`): {shapes}, "
+            f"and the name of its material. Same as ``add({spec.name!r}, material, ...)``; returns the builder."
+        )
+        setattr(SceneBuilder, spec.name, _builder_method(spec, args, optional, doc))
+    for spec in LIGHTS:
+        args = [k.name for k in spec.keys if k.default is None]
+        optional = [k for k in spec.keys if k.default is not None]
+        shapes = ", ".join(f"``{k.name}`` {k.shape}" for k in spec.keys)
+        doc = (
+            f"Add a {spec.name} light (:class:`{spec.module.__module__}.{spec.module.__name__}`): {shapes}. "
+            f"Same as ``add_light({spec.name!r}, ...)``; returns the builder."
+        )
+        setattr(SceneBuilder, spec.builder, _builder_method(spec, args, optional, doc))
+
+
+_install_builder_methods()

@@ -27,6 +27,9 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from .materials import material_rows
+from .vec import take_rows
+
 NONE, CHECKER, STRIPES, IMAGE = 0, 1, 2, 3
 KIND_NAMES = {"checker": CHECKER, "stripes": STRIPES, "image": IMAGE}
 
@@ -156,3 +159,51 @@ def srgb_to_linear_np(x):
 
 
 TWO_PI = 2 * math.pi
+
+
+# ----------------------------------------------------------------------------
+# Surface colour of hits: the material's colour or texture at (u, v)
+# ----------------------------------------------------------------------------
+
+
+def pattern_fraction(mats, k, rows, uv, wuv, filtered):
+    """Fraction ``(n,)`` of the footprint on ``color2`` of each ray's checker or stripes
+    (0 for other texture kinds ``k (n,)``); ``rows``: ``tex_scale`` and, with stripes,
+    ``tex_direction``; ``wuv (2, n)``: footprint widths in uv units."""
+    kinds = mats.kinds_present
+    frac = jnp.zeros_like(uv[0])
+    if CHECKER in kinds:
+        frac = jnp.where(k == CHECKER, checker(uv, wuv, rows["tex_scale"], filtered), frac)
+    if STRIPES in kinds:
+        frac = jnp.where(k == STRIPES, stripes(uv, wuv, rows["tex_scale"], rows["tex_direction"], filtered), frac)
+    return frac
+
+
+def pattern_cell(mats, mat, uv):
+    """Which colour the *hard* (unfiltered) procedural pattern shows at ``uv (2, n)``
+    on materials ``mat (n,)``: 1 for ``color2``, else 0 (also for materials without a
+    checker or stripes). Edge gradients cut edge pieces where it changes."""
+    if CHECKER not in mats.kinds_present and STRIPES not in mats.kinds_present:
+        return jnp.zeros(mat.shape, jnp.int32)
+    rows = material_rows(mats, mat, ("tex_scale", "tex_direction"))
+    k = take_rows(mats.tex_kind, mat)
+    return pattern_fraction(mats, k, rows, uv, jnp.zeros_like(uv), False).astype(jnp.int32)
+
+
+def surface_color(mats, mat, uv, rate, width, filtered, rows=None):
+    kinds = mats.kinds_present
+    if rows is None:
+        rows = material_rows(mats, mat, ("color", "tex_scale", "tex_color2", "tex_direction") if kinds else ("color",))
+    base = rows["color"]
+    if not kinds:
+        return base
+    k = take_rows(mats.tex_kind, mat)
+    frac = pattern_fraction(mats, k, rows, uv, rate * width[None], filtered)
+    c2 = rows["tex_color2"]
+    color = base + (c2 - base) * frac[None]
+    if IMAGE in kinds:
+        img_id = take_rows(mats.tex_image, mat)
+        for j, img in enumerate(mats.images):
+            sel = (k == IMAGE) & (img_id == j)
+            color = jnp.where(sel[None], base * bilinear(img, uv), color)
+    return color

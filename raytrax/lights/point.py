@@ -1,9 +1,15 @@
-"""Point lights."""
+"""Point lights: ``position (L, 3)``, ``intensity (L, 3)``."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 from jaxtyping import Array, Float
+
+from .. import vec as V
+from ..shapes.base import Key
+from .base import LightSample, LightSpec
 
 
 class PointLights(eqx.Module):
@@ -25,3 +31,22 @@ class PointLights(eqx.Module):
                 f"PointLights: expected position and intensity of shape (L, 3), got "
                 f"{self.position.shape} and {self.intensity.shape}"
             )
+
+
+class PointLightSpec(LightSpec):
+    name: ClassVar[str] = "point"
+    field: ClassVar[str] = "lights"
+    builder: ClassVar[str] = "light"
+    module: ClassVar[type] = PointLights
+    keys: ClassVar[tuple] = (
+        Key("position", "position", (3,), "vec3"),
+        Key("intensity", "intensity", (3,), "rgb", default=(1.0, 1.0, 1.0)),
+    )
+
+    def sample(self, g, l, p):
+        v = g.position[l][:, None] - p
+        dist = V.norm(v)
+        return LightSample(V.normalize(v), dist, g.intensity[l], V.safe_div(1.0, dist * dist))
+
+    def edge_geometry(self, g):
+        return g.position

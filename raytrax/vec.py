@@ -106,3 +106,23 @@ def take_rows(table, idx):
             cols.append(v)
         out = jnp.stack(cols)
     return out[0] if flat else out
+
+
+def gather_rows(table, i):
+    """Rows ``table[i]`` of ``table (N, k)`` at ``i (n,)`` as a list of ``k`` arrays ``(n,)``.
+
+    For a few primitives this is a chain of selects (elementwise; its transpose is a
+    masked sum instead of a scatter-add), for one a broadcast; else a gather per
+    column (struct of arrays)."""
+    N, k = table.shape
+    if N == 1:
+        return [jnp.broadcast_to(table[0, j], i.shape) for j in range(k)]
+    if N <= SELECT_GATHER:
+        out = []
+        for j in range(k):
+            v = jnp.broadcast_to(table[0, j], i.shape)
+            for m in range(1, N):
+                v = jnp.where(i == m, table[m, j], v)
+            out.append(v)
+        return out
+    return [table[:, j].at[i].get(mode="promise_in_bounds") for j in range(k)]

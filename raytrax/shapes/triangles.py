@@ -1,0 +1,251 @@
+"""Triangle-based kinds: triangles, regular tetrahedra and meshes.
+
+All three are searched as one merged triangle list (``Scene.merged_triangles``, in
+registry order), brute force or through :mod:`raytrax.bvh`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .. import vec as V
+from .base import INF, Key, KindSpec, check_shape, polygons_from_edges
+
+
+class Triangles(eqx.Module):
+    """Triangles, ``vertices (N, 3, 3)`` (triangle, vertex, xyz); ``(u, v)`` barycentric."""
+
+    vertices: Float[Array, "N 3 3"]
+    material: Int[Array, " N"]
+
+    def __check_init__(self):
+        n = self.vertices.shape[0]
+        check_shape("Triangles.vertices", self.vertices, (n, 3, 3))
+        check_shape("Triangles.material", self.material, (n,))
+
+    def triangles(self):
+        return self.vertices, self.material
+
+
+class Tetrahedra(eqx.Module):
+    """Regular tetrahedra, ``center (N, 3)`` (centroid) and ``size (N,)`` (edge length).
+
+    One face lies horizontal at the bottom, the apex points up (+y). Each is
+    intersected as four triangles generated inside the traced function, so
+    centre and size are differentiable.
+    """
+
+    center: Float[Array, "N 3"]
+    size: Float[Array, " N"]
+    material: Int[Array, " N"]
+
+    def __check_init__(self):
+        n = self.center.shape[0]
+        check_shape("Tetrahedra.center", self.center, (n, 3))
+        check_shape("Tetrahedra.size", self.size, (n,))
+        check_shape("Tetrahedra.material", self.material, (n,))
+
+    def triangles(self):
+        """The four faces as ``(4N, 3, 3)`` vertices (outward winding) and materials."""
+        a = self.size
+        R = a * (math.sqrt(6.0) / 4.0)  # circumradius
+        rb = a / math.sqrt(3.0)  # radius of the base circle
+        yb = -R / 3.0
+        zero = jnp.zeros_like(a)
+        apex = jnp.stack([zero, R, zero], -1)
+        base = []
+        for ang in (90.0, 210.0, 330.0):
+            c, s = math.cos(math.radians(ang)), math.sin(math.radians(ang))
+            base.append(jnp.stack([rb * c, yb, rb * s], -1))
+        b0, b1, b2 = base
+        # Outward winding (counter-clockwise seen from outside).
+        faces = [
+            (b0, b1, b2),
+            (apex, b1, b0),
+            (apex, b2, b1),
+            (apex, b0, b2),
+        ]
+        c = self.center
+        tris = jnp.stack([jnp.stack([p + c, q + c, r + c], 1) for p, q, r in faces], 1)
+        tris = tris.reshape(-1, 3, 3)  # (tetrahedron, face) -> face; outward normals (tests/test_shapes.py)
+        return tris, jnp.repeat(self.material, 4)
+
+
+class Mesh(eqx.Module):
+    """A triangle mesh: ``vertices (V, 3)``, ``faces (F, 3)`` int indices, one material."""
+
+    vertices: Float[Array, "V 3"]
+    faces: Int[Array, "F 3"]
+    material: Int[Array, ""]
+
+    def __check_init__(self):
+        check_shape("Mesh.vertices", self.vertices, (None, 3))
+        check_shape("Mesh.faces", self.faces, (None, 3))
+
+    def triangles(self):
+        tris = self.vertices[self.faces]
+        return tris, jnp.broadcast_to(self.material, (self.faces.shape[0],))
+
+
+def tri_soa(v0, v1, v2):
+    """SoA of triangles from vertex arrays ``(T, 3)`` each."""
+    e1, e2 = v1 - v0, v2 - v0
+    return dict(
+        ax=v0[:, 0],
+        ay=v0[:, 1],
+        az=v0[:, 2],
+        e1x=e1[:, 0],
+        e1y=e1[:, 1],
+        e1z=e1[:, 2],
+        e2x=e2[:, 0],
+        e2y=e2[:, 1],
+        e2z=e2[:, 2],
+    )
+
+
+def tri_t(ray, P, tmin):
+    ox, oy, oz, dx, dy, dz = ray
+    # Moeller-Trumbore.
+    px = dy * P["e2z"] - dz * P["e2y"]
+    py = dz * P["e2x"] - dx * P["e2z"]
+    pz = dx * P["e2y"] - dy * P["e2x"]
+    det = P["e1x"] * px + P["e1y"] * py + P["e1z"] * pz
+    ok = jnp.abs(det) > 1e-20
+    inv = 1.0 / jnp.where(ok, det, 1.0)
+    tx, ty, tz = ox - P["ax"], oy - P["ay"], oz - P["az"]
+    u = (tx * px + ty * py + tz * pz) * inv
+    qx = ty * P["e1z"] - tz * P["e1y"]
+    qy = tz * P["e1x"] - tx * P["e1z"]
+    qz = tx * P["e1y"] - ty * P["e1x"]
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    t = (P["e2x"] * qx + P["e2y"] * qy + P["e2z"] * qz) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin)
+    return jnp.where(hit, t, INF)
+
+
+def tri_hit(v0, v1, v2, o, d, t0):
+    e1, e2 = v1 - v0, v2 - v0
+    pv = V.cross(d, e2)
+    det = V.dot(e1, pv)
+    tv = o - v0
+    qv = V.cross(tv, e1)
+    u = V.safe_div(V.dot(tv, pv), det)
+    v = V.safe_div(V.dot(d, qv), det)
+    t = V.safe_div(V.dot(e2, qv), det)
+    n = V.normalize(V.cross(e1, e2))
+    rate = jnp.stack([V.safe_div(1.0, V.norm(e1)), V.safe_div(1.0, V.norm(e2))])
+    return t, n, jnp.stack([u, v]), rate
+
+
+def triangle_polygons(T, material):
+    """:class:`~raytrax.shapes.base.EdgePolygons` of triangles ``T (N, 3, 3)`` (the
+    fourth edge repeats the third)."""
+    v0, v1, v2 = T[:, 0], T[:, 1], T[:, 2]
+    origins = jnp.stack([v0, v1, v2, v2], 1)
+    dirs = jnp.stack([v1 - v0, v2 - v1, v0 - v2, v0 - v2], 1)
+    return polygons_from_edges(origins, dirs, jnp.cross(v1 - v0, v2 - v0), material)
+
+
+class _TriangleFamily(KindSpec):
+    triangle_family: ClassVar[bool] = True
+
+    def triangles(self, g):
+        return g.triangles()
+
+    def edge_polygons(self, g):
+        return triangle_polygons(*g.triangles())
+
+
+class TriangleSpec(_TriangleFamily):
+    name: ClassVar[str] = "triangle"
+    field: ClassVar[str] = "triangles"
+    module: ClassVar[type] = Triangles
+    keys: ClassVar[tuple] = (
+        Key("vertices", "vertices", (3, 3), "matrix", what="an array of 3 vertices ([x, y, z] each)"),
+    )
+
+    def check(self, p, where):
+        v = p["vertices"]
+        size = max(np.ptp(v, axis=0).max(), 1e-300)
+        if np.linalg.norm(np.cross(v[1] - v[0], v[2] - v[0])) <= 1e-9 * size * size:
+            raise ValueError(f"{where}.vertices: degenerate triangle (zero area)")
+
+    def n_triangles(self, params):
+        return 1
+
+
+class TetrahedronSpec(_TriangleFamily):
+    name: ClassVar[str] = "tetrahedron"
+    field: ClassVar[str] = "tetrahedra"
+    module: ClassVar[type] = Tetrahedra
+    keys: ClassVar[tuple] = (
+        Key("center", "center", (3,), "vec3"),
+        Key("size", "size", (), "positive", what="a positive edge length"),
+    )
+    faces_per: ClassVar[int] = 4
+    solid_faces: ClassVar[int] = 4
+
+    def check(self, p, where):
+        if not p["size"] > 0:
+            raise ValueError(f"{where}.size: expected a positive number, got {float(p['size'])}")
+
+    def n_triangles(self, params):
+        return 4
+
+
+class MeshSpec(_TriangleFamily):
+    """Meshes: the group is a tuple of :class:`Mesh` (one per object)."""
+
+    name: ClassVar[str] = "mesh"
+    field: ClassVar[str] = "meshes"
+    module: ClassVar[type] = Mesh
+    keys: ClassVar[tuple] = ()
+    builder_args: ClassVar[tuple] = ("vertices", "faces")
+
+    def validate(self, params, where):
+        v = np.asarray(params.get("vertices"), dtype=np.float64)
+        f = np.asarray(params.get("faces"))
+        if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < 3:
+            raise ValueError(f"{where}.vertices: expected a (V, 3) array with V >= 3, got shape {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 1 or not np.issubdtype(f.dtype, np.integer):
+            raise ValueError(f"{where}.faces: expected an integer (F, 3) array, got shape {f.shape} of {f.dtype}")
+        if f.min() < 0 or f.max() >= v.shape[0]:
+            raise ValueError(f"{where}.faces: vertex index out of range [0, {v.shape[0]})")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{where}.vertices: expected finite numbers")
+        return dict(vertices=v, faces=f.astype(np.int32))
+
+    def build(self, items, F, I):
+        return tuple(Mesh(F(p["vertices"]), jnp.asarray(p["faces"]), jnp.asarray(m, dtype=jnp.int32)) for p, m in items)
+
+    def count(self, group):
+        return len(group)
+
+    def describe(self, group, j):
+        g = group[j]
+        p = dict(vertices=np.asarray(g.vertices).astype(np.float64), faces=np.asarray(g.faces).astype(np.int64))
+        return p, int(g.material)
+
+    def slots(self, group, j):
+        return [("vertices", (lambda g, j=j: g[j].vertices), None, tuple(group[j].vertices.shape))]
+
+    def n_ids(self, group):
+        return sum(int(m.faces.shape[0]) for m in group)
+
+    def n_triangles(self, params):
+        return int(np.asarray(params["faces"]).shape[0])
+
+    def triangles(self, group):
+        parts = [m.triangles() for m in group]
+        if not parts:
+            return None
+        return jnp.concatenate([t for t, _ in parts], 0), jnp.concatenate([m for _, m in parts], 0)
+
+    def edge_polygons(self, group):
+        return triangle_polygons(*self.triangles(group))
