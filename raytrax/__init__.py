@@ -8,8 +8,6 @@ OpenImageIO until an image is read or written. ``from raytrax import fit`` and
 """
 
 import importlib
-import sys
-import types
 
 __version__ = "0.1.0"
 
@@ -24,8 +22,8 @@ _LAZY = {
     "refract": "materials",
     "parameters": "params",
     "with_parameters": "params",
-    "FitResult": "fit",
-    "fit": "fit",
+    "FitResult": "_fitting",
+    "fit": "_fitting",
     "Environment": "scene",
     "Scene": "scene",
     "SceneBuilder": "scene",
@@ -62,18 +60,3 @@ def __getattr__(name):
 
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
-
-
-class _Package(types.ModuleType):
-    """Keeps ``raytrax.fit`` the function: importing the submodule ``raytrax.fit``
-    (``from raytrax.fit import FitResult``) makes the import system set the
-    package attribute ``fit`` to the module, which used to be overwritten by the
-    eager ``from .fit import fit``."""
-
-    def __setattr__(self, name, value):
-        if name == "fit" and isinstance(value, types.ModuleType) and hasattr(value, "fit"):
-            value = value.fit
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
