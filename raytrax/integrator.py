@@ -32,8 +32,8 @@ from .camera import primary_rays, rays_through
 from .intersect import EPS_REL, closest_hit, occluder_counts, prepare
 from .lights import LIGHTS
 from .materials import fresnel_dielectric, material_rows, refract
-from .textures import surface_color
 from .scene import Scene, Settings
+from .textures import surface_color
 
 RAYS_PER_TILE = 16384
 SUBTILE = 4096

@@ -26,9 +26,9 @@ from jaxtyping import Array, Float
 from . import bvh as bvh_mod
 from . import textures as tx
 from .camera import Camera
-from .lights import LIGHTS
 from .lights import BY_FIELD as LIGHT_BY_FIELD
 from .lights import BY_NAME as LIGHT_BY_NAME
+from .lights import LIGHTS
 from .materials import Materials
 from .shapes import BY_FIELD, BY_NAME, KINDS
 

@@ -45,7 +45,13 @@ import numpy as np
 
 from . import textures as tx
 from ._atomic import atomic_path
+from .lights import BY_NAME as LIGHT_BY_NAME
+from .lights import LIGHT_TYPES as _LIGHT_TYPES
+from .lights import LIGHTS
 from .scene import SHADING_MODELS, Scene, SceneBuilder
+from .shapes import BY_NAME as KIND_BY_NAME
+from .shapes import KINDS
+from .shapes import OBJECT_TYPES as _KINDS_OBJECT_TYPES
 
 __all__ = [
     "SceneError",
@@ -84,7 +90,8 @@ LIMITS = dict(
     texture_pixels=100_000_000,  # per image texture
 )
 
-OBJECT_TYPES = ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh")
+OBJECT_TYPES = _KINDS_OBJECT_TYPES  # every registered kind (raytrax.shapes.registry)
+LIGHT_TYPES = _LIGHT_TYPES  # every registered light type (raytrax.lights.registry)
 TEXTURE_KINDS = ("checker", "stripes", "image", "builtin")
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
 SEED_FOV = 2 * math.degrees(math.atan(10 / 40))
@@ -116,8 +123,17 @@ class RenderDesc:
 
 @dataclasses.dataclass
 class LightDesc:
-    position: tuple
-    intensity: tuple = (1.0, 1.0, 1.0)
+    """A light: ``type`` (a registered light type) and its parameters in ``params``
+    (tuples of floats)."""
+
+    type: str
+    params: dict
+
+    def __getattr__(self, name):  # light.position, light.direction, ...
+        params = self.__dict__.get("params", {})
+        if name in params:
+            return params[name]
+        raise AttributeError(name)
 
 
 @dataclasses.dataclass
@@ -200,7 +216,7 @@ class SceneDescription:
             c = self.camera
             b.camera(position=c.position, look_at=c.look_at, up=c.up, fov=c.fov)
             for light in self.lights:
-                b.light(light.position, light.intensity)
+                b.add_light(light.type, **light.params)
             for name, m in self.materials.items():
                 b.material(
                     name,
@@ -215,23 +231,8 @@ class SceneDescription:
                     texture=None if m.texture is None else m.texture.runtime(),
                 )
             for o in self.objects:
-                p = o.params
-                if o.type == "sphere":
-                    b.sphere(p["center"], p["radius"], o.material)
-                elif o.type == "plane":
-                    b.plane(p["point"], p["normal"], o.material)
-                elif o.type == "quad":
-                    b.quad(p["corners"], o.material)
-                elif o.type == "triangle":
-                    b.triangle(p["vertices"], o.material)
-                elif o.type == "box":
-                    b.box(p["min"], p["max"], o.material, rotation=p.get("rotation", (0.0, 0.0, 0.0)))
-                elif o.type == "tetrahedron":
-                    b.tetrahedron(p["center"], p["size"], o.material)
-                elif o.type == "mesh":
-                    b.mesh(p["vertices"], p["faces"], o.material)
-                else:
-                    raise ValueError(f"object[{len(b._objects)}].type: unknown type {o.type!r}")
+                params = {k: v for k, v in o.params.items() if k not in _MESH_FILE_KEYS}
+                b.add(o.type, o.material, **params)
         except SceneError:
             raise
         except (ValueError, TypeError, KeyError) as e:
@@ -266,12 +267,7 @@ class SceneDescription:
         tris = 0
         for o in self.objects:
             counts[o.type] += 1
-            if o.type == "triangle":
-                tris += 1
-            elif o.type == "tetrahedron":
-                tris += 4
-            elif o.type == "mesh":
-                tris += int(np.asarray(o.params["faces"]).shape[0])
+            tris += KIND_BY_NAME[o.type].n_triangles(o.params)
         counts["triangles_total"] = tris
         return counts
 
@@ -454,7 +450,7 @@ def _value_text(v):
 TOP_KEYS = ("name", "shading", "camera", "render", "light", "material", "object")
 CAMERA_KEYS = ("position", "look_at", "up", "fov")
 RENDER_KEYS = ("width", "height", "spp", "max_depth", "background", "ambient", "filter_textures")
-LIGHT_KEYS = ("position", "intensity")
+LIGHT_KEYS = {spec.name: ("type",) + tuple(k.name for k in spec.keys) for spec in LIGHTS}
 MATERIAL_KEYS = (
     "color",
     "ambient",
@@ -473,24 +469,10 @@ TEXTURE_KEYS = {
     "builtin": ("kind", "name"),
 }
 TEXTURE_REQUIRED = {"checker": ("kind",), "stripes": ("kind",), "image": ("kind", "file"), "builtin": ("kind", "name")}
-OBJECT_KEYS = {
-    "sphere": ("center", "radius"),
-    "plane": ("point", "normal"),
-    "quad": ("corners",),
-    "triangle": ("vertices",),
-    "box": ("min", "max", "rotation"),
-    "tetrahedron": ("center", "size"),
-    "mesh": ("file", "scale", "translate", "vertices", "faces"),
-}
-OBJECT_REQUIRED = {
-    "sphere": ("center", "radius"),
-    "plane": ("point", "normal"),
-    "quad": ("corners",),
-    "triangle": ("vertices",),
-    "box": ("min", "max"),
-    "tetrahedron": ("center", "size"),
-    "mesh": (),
-}
+OBJECT_KEYS = {k.name: tuple(key.name for key in k.keys) for k in KINDS}
+OBJECT_KEYS["mesh"] = ("file", "scale", "translate", "vertices", "faces")
+OBJECT_REQUIRED = {k.name: tuple(key.name for key in k.keys if key.default is None) for k in KINDS}
+_MESH_FILE_KEYS = ("file", "source", "scale", "translate")
 
 
 class _Parser:
@@ -633,10 +615,33 @@ class _Parser:
 
     def light(self, t, path) -> LightDesc:
         t = _table(t, path)
-        _check_keys(t, path, LIGHT_KEYS, required=("position",), context="a light")
-        pos = _vec(t["position"], f"{path}.position")
-        inten = _rgb(t["intensity"], f"{path}.intensity") if "intensity" in t else (1.0, 1.0, 1.0)
-        return LightDesc(pos, inten)
+        typ = t.get("type", "point")
+        if not isinstance(typ, str) or typ not in LIGHT_TYPES:
+            hint = _did_you_mean(typ, LIGHT_TYPES) if isinstance(typ, str) else ""
+            raise _KeyError(f"{path}.type", f"expected one of {', '.join(LIGHT_TYPES)}, got {_got(typ)}{hint}")
+        spec = LIGHT_BY_NAME[typ]
+        required = tuple(k.name for k in spec.keys if k.default is None)
+        _check_keys(t, path, LIGHT_KEYS[typ], required=required, context=f"{_a(typ)} {typ} light")
+        p = {}
+        for k in spec.keys:
+            p[k.name] = self.value(k, t[k.name], f"{path}.{k.name}") if k.name in t else tuple(k.default)
+        return LightDesc(typ, p)
+
+    def value(self, key, v, path):
+        """One parameter of a kind or light type, read by its :class:`~raytrax.shapes.Key` type."""
+        f = key.ftype
+        if f == "rgb":
+            return _rgb(v, path)
+        if f == "positive":
+            return _num(v, path, lo=0.0, lo_open=True, what=key.what or "a positive number")
+        if f == "matrix":
+            return _matrix(v, path, key.shape[0], key.what)
+        if f == "angles3":
+            return _vec(v, path, what="an array of 3 angles in degrees ([rx, ry, rz])")
+        out = _vec(v, path)
+        if f == "nonzero3" and not any(out):
+            raise _KeyError(path, "expected a non-zero vector, got [0, 0, 0]")
+        return out
 
     def material(self, t, path) -> MaterialDesc:
         t = _table(t, path, "a table of material properties")
@@ -733,32 +738,12 @@ class _Parser:
                 f"{_did_you_mean(mat, materials)}; defined: {', '.join(materials)}",
             )
         p: dict[str, Any] = {}
-        if typ == "sphere":
-            p["center"] = _vec(t["center"], f"{path}.center")
-            p["radius"] = _num(t["radius"], f"{path}.radius", lo=0.0, lo_open=True, what="a positive number")
-        elif typ == "plane":
-            p["point"] = _vec(t["point"], f"{path}.point")
-            p["normal"] = _vec(t["normal"], f"{path}.normal")
-            if not any(p["normal"]):
-                raise _KeyError(f"{path}.normal", "expected a non-zero vector, got [0, 0, 0]")
-        elif typ == "quad":
-            p["corners"] = _matrix(
-                t["corners"], f"{path}.corners", 4, "an array of 4 corners ([x, y, z] each, in order around the edge)"
-            )
-        elif typ == "triangle":
-            p["vertices"] = _matrix(t["vertices"], f"{path}.vertices", 3, "an array of 3 vertices ([x, y, z] each)")
-        elif typ == "box":
-            p["min"] = _vec(t["min"], f"{path}.min")
-            p["max"] = _vec(t["max"], f"{path}.max")
-            if "rotation" in t:
-                p["rotation"] = _vec(
-                    t["rotation"], f"{path}.rotation", what="an array of 3 angles in degrees ([rx, ry, rz])"
-                )
-        elif typ == "tetrahedron":
-            p["center"] = _vec(t["center"], f"{path}.center")
-            p["size"] = _num(t["size"], f"{path}.size", lo=0.0, lo_open=True, what="a positive edge length")
-        else:
+        if typ == "mesh":
             p.update(self.mesh(t, path))
+        else:
+            for k in KIND_BY_NAME[typ].keys:
+                if k.name in t:
+                    p[k.name] = self.value(k, t[k.name], f"{path}.{k.name}")
         return ObjectDesc(typ, mat, p)
 
     def mesh(self, t, path) -> dict:
@@ -967,7 +952,10 @@ def describe_scene(scene: Scene) -> SceneDescription:
     render = RenderDesc(
         st.width, st.height, st.spp, st.max_depth, vec(env.background), vec(env.ambient), bool(st.filter_textures)
     )
-    lights = [LightDesc(vec(p), vec(i)) for p, i in zip(S.lights.position, S.lights.intensity)]
+    lights = []
+    for typ, k in scene.light_index:
+        spec = LIGHT_BY_NAME[typ]
+        lights.append(LightDesc(typ, spec.describe(scene.light_sets[spec.field], k)))
 
     M = S.materials
     names = list(scene.material_names) or [f"m{k}" for k in range(M.color.shape[0])]
@@ -1002,36 +990,13 @@ def describe_scene(scene: Scene) -> SceneDescription:
 
     objects = []
     for kind, j in scene.object_index:
-        if kind == "sphere":
-            g = S.spheres
-            p = dict(center=vec(g.center[j]), radius=float(g.radius[j]))
-        elif kind == "plane":
-            g = S.planes
-            p = dict(point=vec(g.point[j]), normal=vec(g.normal[j]))
-        elif kind == "quad":
-            g = S.quads
-            p = dict(corners=tuple(vec(r) for r in g.corners[j]))
-        elif kind == "triangle":
-            g = S.triangles
-            p = dict(vertices=tuple(vec(r) for r in g.vertices[j]))
-        elif kind == "box":
-            g = S.boxes
-            p = {"min": vec(g.lo[j]), "max": vec(g.hi[j])}
-            rot = vec(g.rotation[j])
-            if any(rot):
-                p["rotation"] = rot
-        elif kind == "tetrahedron":
-            g = S.tetrahedra
-            p = dict(center=vec(g.center[j]), size=float(g.size[j]))
-        elif kind == "mesh":
-            g = S.meshes[j]
-            p = dict(vertices=g.vertices.astype(np.float64), faces=g.faces.astype(np.int64))
-            meta = _find_mesh_source(g.vertices, g.faces)
+        spec = KIND_BY_NAME[kind]
+        group = scene.prims[spec.field]
+        p, mat = spec.describe(group, j)
+        if kind == "mesh":
+            meta = _find_mesh_source(group[j].vertices, group[j].faces)
             if meta is not None:
                 p.update(meta)
-        else:  # pragma: no cover
-            raise SceneError(f"{scene.name}: unknown object kind {kind!r}")
-        mat = g.material if kind == "mesh" else g.material[j]
         objects.append(ObjectDesc(kind, names[int(mat)], p))
     return SceneDescription(
         name=scene.name,
@@ -1154,7 +1119,12 @@ def dumps_scene(
         f"filter_textures = {w.val(r.filter_textures)}",
     ]
     for light in desc.lights:
-        L += ["", "[[light]]", f"position = {w.val(light.position)}", f"intensity = {w.val(w.rgb(light.intensity))}"]
+        L += ["", "[[light]]"]
+        if light.type != "point":
+            L.append(f"type = {w.val(light.type)}")
+        for k in LIGHT_BY_NAME[light.type].keys:
+            v = light.params[k.name]
+            L.append(f"{k.name} = {w.val(w.rgb(v) if k.ftype == 'rgb' else v)}")
     default = MaterialDesc()
     for name, m in desc.materials.items():
         L += ["", f"[material.{_key(name)}]", f"color = {w.val(w.rgb(m.color))}"]

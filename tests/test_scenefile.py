@@ -463,7 +463,7 @@ ERRORS = [
     ),
     (
         edit("position = [0.0, 10.0, 0.0]", "intensity = 1.0"),
-        r"light\[0\]: missing key 'position' \(a light needs position\)",
+        r"light\[0\]: missing key 'position' \(a point light needs position\)",
     ),
     (
         edit("position = [0.0, 10.0, 0.0]", "position = [0.0, 10.0, 0.0]\nintensity = [-1.0, 0.0, 0.0]"),
@@ -471,7 +471,7 @@ ERRORS = [
     ),
     (
         edit("position = [0.0, 10.0, 0.0]", "position = [0.0, 10.0, 0.0]\ncolour = 1.0"),
-        r"light\[0\].colour: unknown key; a light takes: position, intensity",
+        r"light\[0\].colour: unknown key; a point light takes: type, position, intensity",
     ),
     # materials
     (
@@ -597,8 +597,8 @@ ERRORS = [
     ),
     (
         edit('type = "sphere"\n', ""),
-        r"object\[0\]: missing key 'type' \(one of sphere, plane, quad, triangle, box, "
-        r"tetrahedron, mesh\)",
+        r"object\[0\]: missing key 'type' \(one of sphere, plane, quad, disk, triangle, "
+        r"tetrahedron, mesh, box\)",
     ),
     (
         edit('type = "sphere"', 'type = "sphre"'),

@@ -40,9 +40,15 @@ def euler_matrix(deg):
     cx, cy, cz = jnp.cos(r[:, 0]), jnp.cos(r[:, 1]), jnp.cos(r[:, 2])
     sx, sy, sz = jnp.sin(r[:, 0]), jnp.sin(r[:, 1]), jnp.sin(r[:, 2])
     one, zero = jnp.ones_like(cx), jnp.zeros_like(cx)
-    Rx = jnp.stack([jnp.stack([one, zero, zero], -1), jnp.stack([zero, cx, -sx], -1), jnp.stack([zero, sx, cx], -1)], -2)
-    Ry = jnp.stack([jnp.stack([cy, zero, sy], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sy, zero, cy], -1)], -2)
-    Rz = jnp.stack([jnp.stack([cz, -sz, zero], -1), jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+    Rx = jnp.stack(
+        [jnp.stack([one, zero, zero], -1), jnp.stack([zero, cx, -sx], -1), jnp.stack([zero, sx, cx], -1)], -2
+    )
+    Ry = jnp.stack(
+        [jnp.stack([cy, zero, sy], -1), jnp.stack([zero, one, zero], -1), jnp.stack([-sy, zero, cy], -1)], -2
+    )
+    Rz = jnp.stack(
+        [jnp.stack([cz, -sz, zero], -1), jnp.stack([sz, cz, zero], -1), jnp.stack([zero, zero, one], -1)], -2
+    )
     return Rz @ Ry @ Rx
 
 

@@ -150,7 +150,13 @@ class QuadSpec(KindSpec):
     field: ClassVar[str] = "quads"
     module: ClassVar[type] = Quads
     keys: ClassVar[tuple] = (
-        Key("corners", "corners", (4, 3), "matrix", what="an array of 4 corners ([x, y, z] each, in order around the edge)"),
+        Key(
+            "corners",
+            "corners",
+            (4, 3),
+            "matrix",
+            what="an array of 4 corners ([x, y, z] each, in order around the edge)",
+        ),
     )
 
     def check(self, p, where):
