@@ -235,7 +235,7 @@ def closest(acc: Accel, ray, tmin):
     equal to the brute-force search."""
     ray2 = tuple(r[:, None] for r in ray)
     tn, tf = _slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
-    keys = jnp.where((tn <= tf) & (tf > tmin), tn, INF)
+    keys = jnp.where((tn <= tf) & (tf > tmin), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype
 
@@ -259,7 +259,7 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
     equal to the brute-force count. ``material (N,)`` of the merged list; ``tmax (n, 1)``."""
     ray2 = tuple(r[:, None] for r in ray)
     tn, tf = _slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
-    keys = jnp.where((tn <= tf) & (tf > 0) & (tn < tmax), tn, INF)
+    keys = jnp.where((tn <= tf) & (tf > 0) & (tn < tmax), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype
     mat = material[acc.index]  # (L, LEAF)

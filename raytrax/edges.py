@@ -761,7 +761,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         ev_d = mk(zeros + DEPTH, A, B, zeros)
         ev_s = mk(zeros + SHADOW, A, c["occ"], zeros)
         evs = [mk(zeros + MISS, A, B, zeros), mk(zeros + MISS, B, A, zeros), ev_d, ev_d, ev_s, ev_s]
-        vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), -1)
+        vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), -1)  # pyright: ignore
         mAb, mBa = vals[0], vals[1]
         case1 = (A >= 0) & (mAb > 0)
         case2 = ~case1 & (B >= 0) & (mBa > 0)
@@ -796,7 +796,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         def bisect(_, lohi):
             lo, hi = lohi
             mid = 0.5 * (lo + hi)
-            neg = g2(xa2 + mid[None] * (xb2 - xa2)) <= 0
+            neg = g2(xa2 + mid[None] * (xb2 - xa2)) <= 0  # pyright: ignore
             return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
 
         lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn2), jnp.ones_like(sgn2)))
@@ -1031,7 +1031,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
     g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)
-    g = jnp.where(res["ok"], g, 0.0)
+    g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
     term = res["coef"].T * g[:, None]  # (K, 3)
     img = jnp.zeros((height * width, 3), term.dtype)
     for j in range(3):

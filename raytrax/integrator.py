@@ -29,11 +29,12 @@ from jax.ad_checkpoint import checkpoint_name
 
 from . import vec as V
 from .camera import primary_rays, rays_through
+from .edges import EdgeOptions, edge_term
 from .intersect import EPS_REL, closest_hit, occluder_counts, prepare
 from .lights import LIGHTS
 from .materials import fresnel_dielectric, material_rows, refract
 from .scene import Scene, Settings
-from .textures import surface_color
+from .textures import footprint_widths, linearized_hit, needs_footprint, surface_color
 
 RAYS_PER_TILE = 16384
 SUBTILE = 4096
@@ -67,7 +68,8 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     mats = scene.materials
     env = scene.environment
     dt = o.dtype
-    hit = closest_hit(kinds, o, d)
+    # The hit, and (filtered procedural textures) how its uv moves with the ray: the footprints' uv Jacobian.
+    hit, uv_shift = linearized_hit(lambda o_: closest_hit(kinds, o_, d), o, needs_footprint(mats, st.filter_textures))
     valid = hit.valid
     t = hit.t
     p = o + t[None] * d
@@ -82,14 +84,15 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
     p_in = p - eps[None] * n_s
 
     cw_hit = cw + spread * t
-    footprint = V.safe_div(cw_hit, jnp.maximum(cos_i, 0.25))
+    # Anisotropic box-filter widths in uv: the cone's ellipse on the surface (long along the view at grazing angles).
+    wuv = jnp.zeros_like(hit.uv) if uv_shift is None else footprint_widths(uv_shift, d, hit.normal, cw_hit)
     names = ("color", "transparency", "reflectivity", "ior")
     if st.shading == "classic":
         names += ("diffuse", "specular", "shininess", "ambient")
     if mats.kinds_present:
         names += ("tex_scale", "tex_color2", "tex_direction")
     rows = material_rows(mats, mat, names)
-    color = surface_color(mats, mat, hit.uv, hit.rate, footprint, st.filter_textures, rows)
+    color = surface_color(mats, mat, hit.uv, wuv, st.filter_textures, rows)
     T = rows["transparency"]
     R = rows["reflectivity"]
     ior = rows["ior"]
@@ -165,7 +168,7 @@ def _shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: 
             local = ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * E
     amb, bg = env.ambient[:, None], env.background[:, None]
     if sel is not None:  # lit[l] above leaves out the lights a ray does not carry
-        env_on = carries(L).astype(dt)[None]
+        env_on = carries(L).astype(dt)[None]  # pyright: ignore
         amb, bg = amb * env_on, bg * env_on
     if st.shading == "classic":
         local = local + amb * (rows["ambient"] * (1.0 - T))[None] * color
@@ -416,8 +419,6 @@ def _radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad
 def _render_edges(scene: Scene, opts: RenderOptions, eo):
     """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
     term of :mod:`raytrax.edges` (zero in value) found on the same samples."""
-    from .edges import edge_term
-
     st = opts.settings
     n = eo.samples
     W, H = st.width, st.height
@@ -502,8 +503,6 @@ def render(
         raise ValueError(f"devices: expected None, 'all' or an integer in [1, {jax.device_count()}], got {devices!r}")
     opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev)
     if edge_gradients:
-        from .edges import EdgeOptions
-
         if key is not None:
             raise ValueError(
                 "edge_gradients: edges are found on the regular n x n sample grid; pass key=None (no jitter)"

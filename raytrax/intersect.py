@@ -71,6 +71,7 @@ def prepare(scene) -> list[Kind]:
             continue
         if spec.count(group):
             part = spec.search(group)
+            assert part is not None, f"kind {spec.name!r} has no search"
             kinds.append(Kind(spec.name, _ng(part.soa), part.material, part.tfun, part.hit, part.crossings, None, spec))
     return kinds
 

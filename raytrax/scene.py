@@ -360,7 +360,7 @@ class SceneBuilder:
                 tex_scale.append(1.0)
                 tex_dir.append((0, 1))
                 img_ids.append(len(images))
-                images.append(F(np.asarray(t.image)))
+                images.append(F(np.asarray(t.image)))  # pyright: ignore
             kinds.add(tex_kind[-1])
         materials = Materials(
             color=F([m.color for m in mats], (-1, 3)),
@@ -388,7 +388,7 @@ class SceneBuilder:
         prims = {k.field: k.build(groups[k.name], F, I) for k in KINDS}
 
         splits = any(m.transparency > 0 for m in mats)
-        settings = Settings(shading=self.shading, branches=2 if splits else 1, **self.render)
+        settings = Settings(shading=self.shading, branches=2 if splits else 1, **self.render)  # pyright: ignore
         lgroups: dict[str, list] = {s.name: [] for s in LIGHTS}
         light_index = []
         for typ, p in self._lights:

@@ -211,7 +211,7 @@ def _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regul
     target_a, weights_a = _target_and_weights(target, weights, shape, dtype)
     # The solver works in float64 when JAX allows it (x64 on), whatever the
     # scene's dtype: quasi-Newton updates in float32 stall near the optimum.
-    sdt = jnp.dtype(jnp.float64) if jax.config.jax_enable_x64 else jnp.dtype(dtype)
+    sdt = jnp.dtype(jnp.float64) if jax.config.read("jax_enable_x64") else jnp.dtype(dtype)
     z0 = {
         n: jnp.asarray(_to_unconstrained(fitted.starts[n], fitted.lo[n], fitted.hi[n], k), sdt)
         for n, k in zip(names, fitted.maps)

@@ -6,6 +6,8 @@ fits of the same structure (new values, new target).
 
 from __future__ import annotations
 
+import re
+
 from collections.abc import Callable
 
 import equinox as eqx
@@ -135,5 +137,8 @@ def _set_values(scene, values, by_path):
 
 
 def _path_name(path):
-    """A pytree path as a parameter name: ``"lights.position"``."""
-    return jax.tree_util.keystr(path).lstrip(".")
+    """A pytree path as a parameter name: ``"lights.position"`` (the scene's kind and
+    light-type groups by their attribute names, ``spheres.center``, not
+    ``prims['spheres'].center``)."""
+    name = jax.tree_util.keystr(path).lstrip(".")
+    return re.sub(r"^(?:prims|light_sets)\['([A-Za-z_]+)'\]", r"\1", name)

@@ -98,7 +98,7 @@ def box_crossings(ray, P, tmax):
     ok = tn <= tf
     n1 = ok & (tn > 0) & (tn < tmax)
     n2 = ok & (tf > 0) & (tf < tmax)
-    return n1.astype(tn.dtype) + n2.astype(tn.dtype)
+    return n1.astype(ray[0].dtype) + n2.astype(ray[0].dtype)
 
 
 def box_t(ray, P, tmin):

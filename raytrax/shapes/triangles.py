@@ -248,4 +248,6 @@ class MeshSpec(_TriangleFamily):
         return jnp.concatenate([t for t, _ in parts], 0), jnp.concatenate([m for _, m in parts], 0)
 
     def edge_polygons(self, group):
-        return triangle_polygons(*self.triangles(group))
+        tm = self.triangles(group)
+        assert tm is not None, "edge polygons of an empty mesh group"
+        return triangle_polygons(*tm)
