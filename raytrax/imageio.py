@@ -12,6 +12,11 @@
   formats are returned as stored. Grey images are repeated to three channels and
   alpha is dropped.
 
+:func:`save_image` takes *linear float* pixels only: an integer array (e.g.
+``uint8`` display values) is refused rather than guessed at, and so is an image
+with NaN or infinite values (which would otherwise turn silently into black or
+white pixels).
+
 Writes are atomic: the image goes to a temporary file in the destination
 folder which is renamed over the destination only when complete, so a failed or
 interrupted write never leaves a half-written (or any) output file.
@@ -82,6 +87,27 @@ def _as_rgb(img, what) -> np.ndarray:
     return a
 
 
+def _as_linear_rgb(img, what) -> np.ndarray:
+    """``img`` as an (H, W, 3) float array of finite linear values, or an ImageError."""
+    a = _as_rgb(img, what)
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ImageError(
+            f"{what}: expected an image of linear float values, got dtype {a.dtype}; for 8-bit display "
+            "(sRGB-encoded) values, pass srgb_to_linear(img / 255)"
+        )
+    bad = ~np.isfinite(a).all(axis=2)
+    n = int(bad.sum())
+    if n:
+        H, W = a.shape[:2]
+        kinds = [k for k, f in (("NaN", np.isnan), ("infinite", np.isinf)) if f(a).any()]
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise ImageError(
+            f"{what}: {n} of {H * W} pixels are not finite ({' and '.join(kinds)} values; the first at "
+            f"row {row}, column {col}); nothing written"
+        )
+    return a
+
+
 def _ext(path) -> str:
     return os.path.splitext(os.fspath(path))[1].lower()
 
@@ -104,15 +130,30 @@ def _set_attr(spec, key, value):
 
 
 def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None = None) -> None:
-    """Write a linear ``(H, W, 3)`` image (numpy or jax array) to ``path``.
+    """Write a linear ``(H, W, 3)`` (or grey ``(H, W)``) float image (numpy or jax
+    array) to ``path``.
 
     The format follows the extension (see :data:`WRITE_FORMATS`): ``.exr`` stores
     linear float32 (``bits=16``: half floats); ``.png`` stores sRGB 8-bit, or
     16-bit with ``bits=16``; ``.jpg`` stores sRGB 8-bit. ``metadata`` (a mapping of
     names to strings or numbers) becomes ``raytrax:NAME`` attributes (typed in EXR;
-    as text in PNG). The file appears
-    atomically (temporary file + rename).
+    as text in PNG). The file appears atomically (temporary file + rename).
+
+    The values must be linear floats: an integer array (``uint8`` display values,
+    say) raises :class:`ImageError` (a ``ValueError``) rather than being taken for
+    linear values or written as they are; convert 8-bit sRGB values with
+    ``srgb_to_linear(img / 255)``. An image with NaN or infinite values raises
+    :class:`ImageError` naming ``path`` and the number of such pixels; nothing is
+    written. Linear values outside ``[0, 1]`` are kept in EXR and clipped in PNG
+    and JPEG.
     """
+    _save_image(path, img, metadata=metadata, bits=bits)
+
+
+def _save_image(path, img, *, metadata=None, bits=None, before_rename=None) -> None:
+    """:func:`save_image`; ``before_rename()``, when given, is called once the
+    temporary file is complete, just before it is renamed into place (it may
+    raise to abandon the write: the temporary file is then removed)."""
     path = os.fspath(path)
     ext = _ext(path)
     if ext not in WRITE_FORMATS:
@@ -125,7 +166,7 @@ def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None =
         bits = default
     if bits not in allowed:
         raise ImageError(f"{path}: bits: expected one of {allowed} for {ext} files, got {bits!r}")
-    a = _as_rgb(img, path)
+    a = _as_linear_rgb(img, path)
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise FileNotFoundError(f"{path}: cannot write: folder {folder} does not exist")
@@ -163,6 +204,8 @@ def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None =
         out.close()
         if not ok:
             raise OSError(f"{path}: cannot write: {msg}")
+        if before_rename is not None:
+            before_rename()
 
 
 def _open(path):

@@ -75,11 +75,53 @@ def test_png_roundtrip_within_quantisation(tmp_path, img, bits):
     assert io.load_image_metadata(p)["scene"] == "x"
 
 
-def test_png_clips_and_handles_nan(tmp_path):
-    a = np.array([[[-1.0, 2.0, np.nan]]], dtype=np.float32)
+def test_png_clips(tmp_path):
+    a = np.array([[[-1.0, 2.0, 0.0]]], dtype=np.float32)
     p = tmp_path / "c.png"
     io.save_image(p, a)
     np.testing.assert_array_equal(io.load_image(p), [[[0.0, 1.0, 0.0]]])
+
+
+@pytest.mark.parametrize("ext", [".png", ".exr", ".jpg"])
+def test_non_finite_pixels_are_refused(tmp_path, img, ext):
+    # Never silently black (or white): a clear error naming the file and the count.
+    p = tmp_path / f"n{ext}"
+    with pytest.raises(
+        ValueError, match=rf"n\{ext}: 117 of 117 pixels are not finite \(NaN values; the first at row 0"
+    ):
+        io.save_image(p, np.full_like(img, np.nan))
+    some = img.copy()
+    some[2, 3, 1] = np.nan
+    some[4, 5] = np.inf
+    some[4, 6, 0] = -np.inf
+    with pytest.raises(
+        io.ImageError,
+        match=r"3 of 117 pixels are not finite \(NaN and infinite values; the first at row 2, column 3\); nothing written",
+    ):
+        io.save_image(p, some)
+    with pytest.raises(io.ImageError, match="1 of 1 pixels"):
+        io.save_image(p, np.array([[np.nan]], np.float32))  # grey
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int64])
+def test_integer_images_are_refused(tmp_path, dtype):
+    # Integers are not taken for linear values (uint8 255 would be 255 times white).
+    a = np.full((4, 5, 3), 128, dtype)
+    p = tmp_path / "i.png"
+    with pytest.raises(
+        ValueError, match=rf"i\.png: expected an image of linear float values, got dtype {np.dtype(dtype)}"
+    ):
+        io.save_image(p, a)
+    assert os.listdir(tmp_path) == []
+    # The way the message says: 8-bit display values through srgb_to_linear.
+    io.save_image(p, io.srgb_to_linear(np.full((4, 5, 3), 128, np.uint8) / 255))
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(p))
+    raw = inp.read_image(0, 0, 0, 3, oiio.UINT8)
+    inp.close()
+    assert (raw == 128).all()
 
 
 def test_jpeg_and_grey(tmp_path):
