@@ -10,11 +10,14 @@
 Renders use jax's persistent compilation cache (``$JAX_COMPILATION_CACHE_DIR``,
 default ``~/.cache/raytrax/jax``) and keep the compiled render itself there too,
 so a second run of the same scene at the same settings skips tracing and
-compiling (``RAYTRAX_EXECUTABLE_CACHE=0`` turns the latter off).
+compiling (``RAYTRAX_EXECUTABLE_CACHE=0`` turns the latter off; see
+:mod:`raytrax.executables`). ``raytrax --version`` prints the version;
+``python -m raytrax`` is the same command.
 
 Exit status: 0 on success, 2 on a user error (bad scene file, bad option, an
 output that cannot be written), with one line on stderr and no traceback;
-130 when interrupted (Ctrl-C). A failed or interrupted run leaves no output file
+130 when interrupted (Ctrl-C), in any phase, with ``raytrax: interrupted; no
+output written`` on stderr. A failed or interrupted run leaves no output file
 behind: images are written to a temporary file in the output folder and renamed
 into place when complete.
 """
@@ -59,7 +62,10 @@ def _integer(name):
 
 
 def _build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     p = _Parser(prog=PROG, description="raytrax: a differentiable Whitted-style raytracer in JAX.")
+    p.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     r = sub.add_parser(
@@ -219,10 +225,11 @@ def _cmd_render(args) -> int:
     import jax
     import numpy as np
 
-    from .imageio import save_image
+    from . import executables
+    from .imageio import _save_image
 
     with _Phase("compiling", q) as ph_c:
-        compiled, leaves, cached = _compiled_render(scene)
+        compiled, leaves, cached = executables.compiled_render(scene)
     with _Phase("rendering", q) as ph_r:
         try:
             img = np.asarray(jax.block_until_ready(compiled(leaves)))
@@ -231,8 +238,8 @@ def _cmd_render(args) -> int:
                 raise
             # A cached executable that does not run (e.g. XLA lost part of it when
             # serializing): forget it and compile.
-            _forget(cached)
-            compiled, leaves, _ = _compiled_render(scene, use_cache=False)
+            executables.forget(cached)
+            compiled, leaves, _ = executables.compiled_render(scene, use_cache=False)
             img = np.asarray(jax.block_until_ready(compiled(leaves)))
     bits = args.bits
     meta = dict(
@@ -246,9 +253,11 @@ def _cmd_render(args) -> int:
         render_time_s=round(ph_r.elapsed, 4),
         compile_time_s=round(ph_c.elapsed, 4),
     )
-    if _INTERRUPTED.is_set():  # a Ctrl-C that JAX swallowed mid-compile still means: no output
-        raise KeyboardInterrupt
-    save_image(out, img, metadata=meta, bits=bits)
+    # Under the interrupt lock: a Ctrl-C now waits for the temporary file to be
+    # complete and removed, or renamed into place (the run is then done).
+    with _INT.lock:
+        _save_image(out, img, metadata=meta, bits=bits, before_rename=_INT.check)
+        _INT.done = True
     total = time.perf_counter() - t_start
     _say(
         f"wrote {out} ({st.width} x {st.height}) in {total:.1f} s "
@@ -256,207 +265,6 @@ def _cmd_render(args) -> int:
         q,
     )
     return 0
-
-
-# -----------------------------------------------------------------------------
-# Compiled renders, cached across processes
-# -----------------------------------------------------------------------------
-#
-# jax's persistent compilation cache is looked up by a hash of the lowered
-# program, so a warm run still traces and lowers the whole integrator (seconds)
-# before it finds the executable. The CLI also keeps the serialized executable
-# itself (``jax.experimental.serialize_executable``) under a key computed without
-# tracing: the raytrax sources, the jax version, backend, CPU and configuration,
-# and the scene's structure (tree, static fields, leaf shapes and dtypes). A hit
-# skips tracing, lowering and compiling (about 2 s of CPU for the seed scene,
-# jax 0.10). Anything unexpected (no entry, an unreadable or incompatible one, a
-# program XLA cannot serialize, a loaded program that fails to run) falls back to
-# ``jit(...).lower(...).compile()``, which still uses jax's own cache. Entries
-# live in ``<jax_compilation_cache_dir>/raytrax-executables/`` (the newest 32);
-# ``RAYTRAX_EXECUTABLE_CACHE=0`` turns this off.
-
-_EXEC_DIR = "raytrax-executables"
-_EXEC_KEEP = 32  # newest entries kept
-_EXEC_FORMAT = 1
-
-
-def _source_digest() -> bytes:
-    import hashlib
-
-    h = hashlib.sha256()
-    root = os.path.dirname(os.path.abspath(__file__))
-    for dirpath, dirnames, filenames in os.walk(root):  # subpackages too
-        dirnames.sort()
-        for name in sorted(filenames):
-            if name.endswith(".py"):
-                path = os.path.join(dirpath, name)
-                h.update(os.path.relpath(path, root).encode())
-                with open(path, "rb") as f:
-                    h.update(f.read())
-    return h.digest()
-
-
-def _host_digest() -> str:
-    """CPU model and instruction-set flags (an executable is compiled for them)."""
-    import platform
-
-    text = platform.machine() + platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith(("flags", "model name", "Features", "CPU part")):
-                    text += line
-                elif not line.strip():
-                    break  # the first processor is enough
-    except OSError:
-        pass
-    return text
-
-
-def _executable_key(scene) -> str | None:
-    """Key of the compiled render of ``scene``, or None when the scene has a static
-    part without a stable text form."""
-    import hashlib
-
-    import jax
-    import jaxlib
-    import numpy as np
-
-    leaves, treedef = jax.tree_util.tree_flatten(scene)
-    parts = [str(treedef)]
-    for x in leaves:
-        if isinstance(x, (jax.Array, np.ndarray)):
-            parts.append(f"{x.shape}{x.dtype}{getattr(x, 'weak_type', False)}")
-        else:
-            parts.append(repr(x))
-    if any(" at 0x" in p or "..." in p for p in parts):  # an address, or a summarised (large) array
-        return None
-    dev = jax.devices()[0]
-    cfg = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
-    parts += [
-        jax.__version__,
-        jaxlib.__version__,
-        dev.platform,
-        dev.device_kind,
-        dev.client.platform_version,
-        str(jax.device_count()),
-        os.environ.get("XLA_FLAGS", ""),
-        repr(cfg),
-        _host_digest(),
-    ]
-    h = hashlib.sha256(_source_digest())
-    h.update("\0".join(parts).encode())
-    return h.hexdigest()[:40]
-
-
-def _executable_path(key) -> str | None:
-    import jax
-
-    if os.environ.get("RAYTRAX_EXECUTABLE_CACHE", "1") == "0" or key is None:
-        return None
-    root = jax.config.jax_compilation_cache_dir
-    return os.path.join(root, _EXEC_DIR, f"render-{key}.bin") if root else None
-
-
-def _load_executable(path, leaves):
-    """The compiled render stored at ``path``, or None."""
-    import pickle
-
-    import jax
-    from jax.experimental.serialize_executable import deserialize_and_load
-
-    try:
-        with open(path, "rb") as f:
-            fmt, payload, in_tree, out_tree = pickle.load(f)
-        if fmt != _EXEC_FORMAT:
-            return None
-        compiled = deserialize_and_load(payload, in_tree, out_tree)
-        expected = [(a.shape, a.dtype) for a in jax.tree_util.tree_leaves(compiled.args_info)]
-        if expected != [(x.shape, x.dtype) for x in leaves]:
-            return None
-    except Exception:  # noqa: BLE001 - missing, truncated or incompatible: compile instead
-        return None
-    try:
-        os.utime(path)  # recently used
-    except OSError:
-        pass
-    return compiled
-
-
-def _forget(path):
-    try:
-        os.unlink(path)
-    except OSError:
-        pass
-
-
-def _store_executable(path, compiled):
-    import pickle
-    import tempfile
-
-    from jax.experimental.serialize_executable import serialize
-
-    try:
-        payload, in_tree, out_tree = serialize(compiled)
-        folder = os.path.dirname(path)
-        os.makedirs(folder, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".bin")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                pickle.dump((_EXEC_FORMAT, payload, in_tree, out_tree), f, protocol=pickle.HIGHEST_PROTOCOL)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
-        entries = sorted(
-            (os.path.getmtime(p), p)
-            for p in (os.path.join(folder, n) for n in os.listdir(folder) if n.startswith("render-"))
-        )
-        for _, p in entries[:-_EXEC_KEEP]:
-            os.unlink(p)
-    except Exception:  # noqa: BLE001 - e.g. XLA cannot serialize this program; nothing is cached
-        pass
-
-
-def _compiled_render(scene, use_cache=True):
-    """``(compiled, leaves, path)``: ``compiled(leaves)`` renders ``scene`` (its
-    array leaves ``leaves``); ``path`` is the executable cache entry it was loaded
-    from, or None when it was compiled here."""
-    import equinox as eqx
-    import jax
-
-    dynamic, static = eqx.partition(scene, eqx.is_array)
-    leaves, treedef = jax.tree_util.tree_flatten(dynamic)
-    path = _executable_path(_executable_key(scene)) if use_cache else None
-    if path is not None and os.path.exists(path):
-        compiled = _load_executable(path, leaves)
-        if compiled is not None:
-            return compiled, leaves, path
-        _forget(path)  # unreadable or for other arguments
-
-    from .integrator import render
-
-    def fn(leaves):
-        return render(eqx.combine(jax.tree_util.tree_unflatten(treedef, leaves), static))
-
-    from jax import monitoring
-
-    hits = []
-
-    def on_event(event, **kw):
-        if event == "/jax/compilation_cache/cache_hits":
-            hits.append(event)
-
-    monitoring.register_event_listener(on_event)
-    try:
-        compiled = jax.jit(fn).lower(leaves).compile()
-    finally:
-        monitoring.unregister_event_listener(on_event)
-    # Only a program compiled here is stored: one that jax's cache deserialized
-    # was seen to serialize again without all its functions (XLA:CPU, jax 0.10).
-    if path is not None and not hits:
-        _store_executable(path, compiled)
-    return compiled, leaves, None
 
 
 def _fmt_vec(v):
@@ -603,12 +411,110 @@ def _cmd_info(args) -> int:
     return 0
 
 
-_INTERRUPTED = threading.Event()
+# -----------------------------------------------------------------------------
+# Ctrl-C
+# -----------------------------------------------------------------------------
+#
+# Raising KeyboardInterrupt from a signal handler while XLA compiles in its own
+# threads, then tearing the interpreter down with those threads alive, crashed
+# the process (SIGSEGV) most of the time. So the command does not raise: the C
+# level signal handler wakes a watcher thread (``signal.set_wakeup_fd``, which
+# works even while the main thread is inside XLA), and the watcher prints the
+# message, flushes stdout and stderr and ends the process with ``os._exit(130)``:
+# no interpreter teardown, no destructors racing XLA's threads. The one thing it
+# waits for is the image file: ``_INT.lock`` is held from the creation of its
+# temporary file until that is removed (interrupted: checked after the write,
+# before the rename) or renamed into place (the run is then complete, and a
+# Ctrl-C from then on is ignored). In-process calls (``main(argv)``) keep
+# KeyboardInterrupt and return 130.
 
 
-def _on_sigint(signum, frame):
-    _INTERRUPTED.set()
-    raise KeyboardInterrupt
+class _Interrupts:
+    def __init__(self):
+        self.event = threading.Event()  # a SIGINT arrived
+        self.lock = threading.Lock()  # held while the output file is being written
+        self.done = False  # the output is in place, or the run is over: nothing left to interrupt
+        self.hard = False  # end the process (the command) rather than raise
+        self._exiting = threading.Lock()
+
+    def reset(self, hard: bool):
+        self.event.clear()
+        self.done = False
+        self.hard = hard
+
+    def check(self):
+        """Raise KeyboardInterrupt if a Ctrl-C arrived (before the output is renamed
+        into place)."""
+        if self.event.is_set():
+            raise KeyboardInterrupt
+
+    def on_signal(self, signum, frame):
+        """The Python-level SIGINT handler (main thread, between bytecodes)."""
+        self.event.set()
+        if not self.hard:
+            raise KeyboardInterrupt
+
+    def watch(self, fd):
+        """Watcher thread: woken by the C-level handler through the wakeup fd."""
+        import signal
+
+        while True:
+            try:
+                data = os.read(fd, 64)
+            except OSError:
+                return
+            if not data:
+                return
+            if signal.SIGINT in data:
+                self.event.set()
+                self.exit()
+
+    def finish(self):
+        """The run is over (any status): a later Ctrl-C is ignored, also while the
+        interpreter shuts down (which would otherwise restore the default handler,
+        and a Ctrl-C then would kill the process by SIGINT)."""
+        import signal
+
+        with self.lock:
+            self.done = True
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def exit(self):
+        """Print the message and end the process with status 130, once (a second
+        caller waits here for the end), unless the output is already in place."""
+        self._exiting.acquire()
+        with self.lock:  # not while the output file is being written
+            if self.done:
+                self._exiting.release()
+                return
+            try:
+                start = "\n" if _Phase.open_line else ""
+                sys.stderr.write(f"{start}{PROG}: interrupted; no output written\n")
+                sys.stderr.flush()
+                sys.stdout.flush()
+            finally:
+                os._exit(130)
+
+
+_INT = _Interrupts()
+
+
+def _install_interrupts(hard: bool):
+    """Install the SIGINT handling (main thread only); returns a function that
+    restores the previous handler (in-process use; the command keeps its own)."""
+    import signal
+
+    _INT.reset(hard)
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        return lambda: None  # (ignored: a background job, which a Ctrl-C in its terminal must not stop)
+    previous = signal.signal(signal.SIGINT, _INT.on_signal)
+    if hard:
+        r, w = os.pipe()
+        os.set_blocking(w, False)
+        signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+        threading.Thread(target=_INT.watch, args=(r,), name="raytrax-sigint", daemon=True).start()
+    return lambda: signal.signal(signal.SIGINT, previous)
 
 
 def _enable_compilation_cache():
@@ -624,18 +530,23 @@ def _enable_compilation_cache():
 
 
 def main(argv: list | None = None) -> int:
-    """Entry point of the ``raytrax`` command; returns the exit status."""
-    import signal
+    """Entry point of the ``raytrax`` command; returns the exit status.
 
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, _on_sigint)
-    _INTERRUPTED.clear()
+    Without ``argv`` (the ``raytrax`` command, ``python -m raytrax``: arguments
+    from ``sys.argv``), a Ctrl-C ends the process at once with status 130 (see
+    the comment above :class:`_Interrupts`) and, once the run is over, Ctrl-C is
+    ignored until the process ends. With an ``argv`` list (in-process use), a
+    Ctrl-C makes it return 130 and the previous handler is restored on return.
+    """
+    hard = argv is None
+    restore = _install_interrupts(hard)
     try:
         return _main(argv)
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        if hard:
+            _INT.finish()
+        else:
+            restore()
 
 
 def _user_errors():
@@ -655,16 +566,24 @@ def _main(argv):
             _enable_compilation_cache()
             return _cmd_render(args)
         return _cmd_info(args)
-    except SystemExit:  # --help
+    except SystemExit:  # --help, --version
         raise
+    except UsageError as e:  # (before _user_errors(), which imports jax)
+        return _report(e)
     except KeyboardInterrupt:
+        if _INT.hard:
+            _INT.exit()
         start = "\n" if _Phase.open_line else ""
         print(f"{start}{PROG}: interrupted; no output written", file=sys.stderr, flush=True)
         return 130
     except _user_errors() as e:
-        msg = " ".join(str(e).split("\n"))
-        print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
-        return 2
+        return _report(e)
+
+
+def _report(e) -> int:
+    msg = " ".join(str(e).split("\n"))
+    print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
+    return 2
 
 
 if __name__ == "__main__":

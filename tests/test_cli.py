@@ -1,6 +1,6 @@
 """The ``raytrax`` command line: exit codes, one-line errors, no stray files.
 
-Renders run in subprocesses (``python -m raytrax.cli``) sharing one persistent
+Renders run in subprocesses (``python -m raytrax``) sharing one persistent
 JAX compilation cache, so only the first render of ``tiny.toml`` compiles from
 scratch. Most error paths are checked in-process through ``main(argv)``, plus a
 few through a subprocess for the real exit status and stderr.
@@ -18,7 +18,8 @@ import time
 import numpy as np
 import pytest
 
-from raytrax import cli
+import raytrax
+from raytrax import cli, executables
 from raytrax.imageio import load_image, load_image_metadata
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -38,9 +39,13 @@ def env(tmp_path_factory):
     return e
 
 
+def _default_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # (a test runner's worker may ignore SIGINT)
+
+
 def run(args, cwd, env, **kw):
     return subprocess.run(
-        [sys.executable, "-m", "raytrax.cli", *args],
+        [sys.executable, "-m", "raytrax", *args],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -65,7 +70,7 @@ def one_line(stderr: str) -> str:
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory, env):
     d = tmp_path_factory.mktemp("cli")
-    _SOURCES["rendered"] = cli._source_digest()
+    _SOURCES["rendered"] = executables.source_digest()
     r = run(["render", TINY, "-o", "tiny.png", *SMALL], d, env)
     return d, r
 
@@ -107,7 +112,7 @@ def test_second_render_uses_the_executable_cache(rendered, env):
     # The first render compiled (its cache dir started empty) and kept the compiled
     # program; an entry that cannot be read is forgotten and the render compiles.
     d, _ = rendered
-    folder = os.path.join(env["JAX_COMPILATION_CACHE_DIR"], cli._EXEC_DIR)
+    folder = os.path.join(env["JAX_COMPILATION_CACHE_DIR"], executables.CACHE_DIR)
     entries = [f for f in os.listdir(folder) if f.startswith("render-")] if os.path.isdir(folder) else []
     if not entries:  # XLA sometimes cannot serialise a program (seen once in six runs); nothing to test
         pytest.skip("this compiled program could not be serialised; the CLI kept no executable")
@@ -117,7 +122,7 @@ def test_second_render_uses_the_executable_cache(rendered, env):
     r = run(["render", TINY, "-o", "again.png", "-q", *SMALL], d, env)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert np.array_equal(load_image(d / "again.png"), load_image(d / "tiny.png"))
-    if cli._source_digest() == _SOURCES["rendered"]:  # (else: sources edited meanwhile, another key)
+    if executables.source_digest() == _SOURCES["rendered"]:  # (else: sources edited meanwhile, another key)
         assert not any(f in os.listdir(folder) for f in entries)
     os.remove(d / "again.png")
 
@@ -152,6 +157,7 @@ def test_interrupt_leaves_no_output(tmp_path, env, rendered):
         stderr=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
+        preexec_fn=_default_sigint,
     )
     try:
         seen = ""
@@ -172,6 +178,112 @@ def test_interrupt_leaves_no_output(tmp_path, env, rendered):
     assert err.rstrip().splitlines()[-1] == "raytrax: interrupted; no output written"
     assert "Traceback" not in err
     assert os.listdir(tmp_path) == []
+
+
+def test_interrupt_during_a_cold_compile_exits_130_without_crashing(tmp_path):
+    # Ctrl-C while XLA compiles (in its own threads) used to print the message and
+    # then crash the interpreter on its way out (SIGSEGV, status 139 in a shell)
+    # most times 2 s into compiling. Each run compiles the seed scene from scratch
+    # (fresh jax cache, no executable cache) and is interrupted 0.3 to 2 s into
+    # compiling (which takes longer: 5 to 10 s on two cores).
+    e = dict(os.environ, JAX_PLATFORMS="cpu", RAYTRAX_EXECUTABLE_CACHE="0")
+    e["XLA_FLAGS"] = " ".join(f for f in e.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    codes = []
+    for i, delay in enumerate((0.3, 1.2, 2.0)):
+        out = tmp_path / f"out{i}"
+        out.mkdir()
+        e["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / f"jax{i}")
+        p = subprocess.Popen(
+            [sys.executable, "-m", "raytrax", "render", "-o", "seed.png", "--width", "31", "--height", "30"],
+            cwd=out,
+            env=e,
+            stderr=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            preexec_fn=_default_sigint,
+        )
+        try:
+            seen = ""
+            while "compiling" not in seen:
+                ch = p.stderr.read(1)
+                if not ch:
+                    break
+                seen += ch
+            assert "compiling" in seen, seen
+            time.sleep(delay)
+            p.send_signal(signal.SIGINT)
+            stdout, err = p.communicate(timeout=60)
+        finally:
+            if p.poll() is None:
+                p.kill()
+        err = seen + err
+        assert p.returncode not in (-11, 139) and "Segmentation" not in err, (delay, p.returncode, err)
+        assert "Traceback" not in err and stdout == "", err
+        codes.append(p.returncode)
+        if p.returncode == 0:  # (a fast machine: compiled and rendered before the Ctrl-C)
+            assert "wrote seed.png" in err and os.listdir(out) == ["seed.png"], err
+            continue
+        assert p.returncode == 130, (delay, p.returncode, err)
+        assert err.rstrip().splitlines()[-1] == "raytrax: interrupted; no output written", err
+        assert os.listdir(out) == []  # no image, no temporary file
+    assert codes[0] == 130
+
+
+def test_interrupt_before_the_rename_keeps_the_old_output(tmp_path, monkeypatch, capsys):
+    # A Ctrl-C that arrives while the image is being written (here: seen during the
+    # render, as when JAX swallows it) abandons the temporary file before its rename.
+    target = tmp_path / "out.png"
+    target.write_bytes(b"old")
+
+    def interrupted_render(leaves):
+        cli._INT.event.set()
+        return np.full((12, 16, 3), 0.5, np.float32)
+
+    monkeypatch.setattr(cli, "_enable_compilation_cache", lambda: None)
+    monkeypatch.setattr(executables, "compiled_render", lambda scene, use_cache=True: (interrupted_render, [], None))
+    code, out, err = main_err(capsys, ["render", TINY, "-o", str(target), *SMALL])
+    assert code == 130 and out == ""
+    assert err.rstrip().splitlines()[-1] == "raytrax: interrupted; no output written"
+    assert os.listdir(tmp_path) == ["out.png"] and target.read_bytes() == b"old"
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"raytrax {raytrax.__version__}\n"
+    r = subprocess.run([sys.executable, "-m", "raytrax", "--version"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout == f"raytrax {raytrax.__version__}\n" and r.stderr == ""
+
+
+def test_python_m_raytrax_is_the_command(tmp_path, env, capsys):
+    # `python -m raytrax` runs cli.main, as the installed `raytrax` script does.
+    code, out, err = main_err(capsys, ["info", TINY])
+    assert code == 0 and err == ""
+    r = subprocess.run([sys.executable, "-m", "raytrax", "info", TINY], env=env, capture_output=True, text=True)
+    assert (r.returncode, r.stdout, r.stderr) == (0, out, "")
+    exe = shutil.which("raytrax")
+    results = []
+    for cmd in [[sys.executable, "-m", "raytrax"]] + ([[exe]] if exe else []):
+        for args in (["render", "--help"], ["paint"]):  # (no jax to import: quick)
+            r = subprocess.run([*cmd, *args], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+            results.append((r.returncode, r.stdout, r.stderr))
+    assert [c for c, _, _ in results[:2]] == [0, 2] and "--width" in results[0][1]
+    assert one_line(results[1][2]).startswith("raytrax: error: argument COMMAND: invalid choice: 'paint'")
+    if exe:
+        assert results[2:] == results[:2]
+    assert os.listdir(tmp_path) == []
+
+
+def test_seed_scene_is_one_file():
+    # scenes/cosc363.toml is a link to the copy shipped in the package: editing it
+    # changes what `raytrax render` (no SCENE) draws.
+    seed = os.path.join(ROOT, "scenes", "cosc363.toml")
+    shipped = os.path.join(ROOT, "raytrax", "data", "scenes", "cosc363.toml")
+    assert os.path.islink(seed) and not os.path.islink(shipped)
+    assert os.path.realpath(seed) == os.path.realpath(shipped)
+    if os.path.realpath(os.path.dirname(cli.__file__)) == os.path.realpath(os.path.join(ROOT, "raytrax")):
+        assert os.path.samefile(cli.seed_scene_path(), seed)
 
 
 # -----------------------------------------------------------------------------
@@ -277,17 +389,17 @@ def test_executable_key_follows_the_scene_structure():
     from raytrax.scenefile import load_description
 
     desc = load_description(TINY)
-    key = cli._executable_key(desc.build())
-    assert key is not None and key == cli._executable_key(desc.build())
-    assert cli._executable_key(desc.with_render(width=17).build()) != key  # a static setting
-    assert cli._executable_key(desc.with_render(spp=4).build()) != key
+    key = executables.executable_key(desc.build())
+    assert key is not None and key == executables.executable_key(desc.build())
+    assert executables.executable_key(desc.with_render(width=17).build()) != key  # a static setting
+    assert executables.executable_key(desc.with_render(spp=4).build()) != key
 
 
 def test_unreadable_executable_is_ignored(tmp_path):
     bad = tmp_path / "render-x.bin"
     bad.write_bytes(b"\x80\x05garbage")
-    assert cli._load_executable(str(bad), []) is None
-    assert cli._load_executable(str(tmp_path / "missing.bin"), []) is None
+    assert executables.load_executable(str(bad), []) is None
+    assert executables.load_executable(str(tmp_path / "missing.bin"), []) is None
 
 
 def test_cached_executable_that_fails_to_run_is_recompiled(tmp_path, monkeypatch, capsys):
@@ -308,7 +420,7 @@ def test_cached_executable_that_fails_to_run_is_recompiled(tmp_path, monkeypatch
         return (bad, [], str(entry)) if use_cache else (good, [], None)
 
     monkeypatch.setattr(cli, "_enable_compilation_cache", lambda: None)
-    monkeypatch.setattr(cli, "_compiled_render", fake)
+    monkeypatch.setattr(executables, "compiled_render", fake)
     code, out, err = main_err(capsys, ["render", TINY, "-o", str(tmp_path / "out.png"), "-q", *SMALL])
     assert code == 0 and err == "", err
     assert calls == [True, False] and not entry.exists()
