@@ -39,8 +39,17 @@ def env(tmp_path_factory):
     return e
 
 
-def _default_sigint():
-    signal.signal(signal.SIGINT, signal.SIG_DFL)  # (a test runner's worker may ignore SIGINT)
+def interruptible(module, args, **kw):
+    """``python -m module args`` in a subprocess, with SIGINT at its default: a test
+    run started as a background job ignores SIGINT, and so would the CLI then (it
+    keeps an ignored SIGINT ignored). Pipes for stdout and stderr, as text."""
+    shim = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+        f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", shim, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw
+    )
 
 
 def run(args, cwd, env, **kw):
@@ -150,15 +159,7 @@ def test_user_error_exit_2_one_line_no_files(tmp_path, env):
 
 
 def test_interrupt_leaves_no_output(tmp_path, env, rendered):
-    p = subprocess.Popen(
-        [sys.executable, "-m", "raytrax.cli", "render", TINY, "-o", "int.png", *SMALL],
-        cwd=tmp_path,
-        env=env,
-        stderr=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        preexec_fn=_default_sigint,
-    )
+    p = interruptible("raytrax.cli", ["render", TINY, "-o", "int.png", *SMALL], cwd=tmp_path, env=env)
     try:
         seen = ""
         deadline = time.time() + 120
@@ -193,15 +194,7 @@ def test_interrupt_during_a_cold_compile_exits_130_without_crashing(tmp_path):
         out = tmp_path / f"out{i}"
         out.mkdir()
         e["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / f"jax{i}")
-        p = subprocess.Popen(
-            [sys.executable, "-m", "raytrax", "render", "-o", "seed.png", "--width", "31", "--height", "30"],
-            cwd=out,
-            env=e,
-            stderr=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            preexec_fn=_default_sigint,
-        )
+        p = interruptible("raytrax", ["render", "-o", "seed.png", "--width", "31", "--height", "30"], cwd=out, env=e)
         try:
             seen = ""
             while "compiling" not in seen:
