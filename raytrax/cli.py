@@ -226,7 +226,7 @@ def _cmd_render(args) -> int:
     import numpy as np
 
     from . import executables
-    from .imageio import _save_image
+    from .imageio import save_image
 
     with _Phase("compiling", q) as ph_c:
         compiled, leaves, cached = executables.compiled_render(scene)
@@ -256,7 +256,7 @@ def _cmd_render(args) -> int:
     # Under the interrupt lock: a Ctrl-C now waits for the temporary file to be
     # complete and removed, or renamed into place (the run is then done).
     with _INT.lock:
-        _save_image(out, img, metadata=meta, bits=bits, before_rename=_INT.check)
+        save_image(out, img, metadata=meta, bits=bits, before_rename=_INT.check)
         _INT.done = True
     total = time.perf_counter() - t_start
     _say(
@@ -522,7 +522,7 @@ def _enable_compilation_cache():
     ``~/.cache/raytrax/jax``) so a second run of the same scene skips compiling."""
     import jax
 
-    if not jax.config.jax_compilation_cache_dir:
+    if not jax.config.values.get("jax_compilation_cache_dir"):
         jax.config.update(
             "jax_compilation_cache_dir", os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax")
         )

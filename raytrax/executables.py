@@ -96,8 +96,8 @@ def executable_key(scene) -> str | None:
     import hashlib
 
     import jax
-    import jaxlib
     import numpy as np
+    from jaxlib import version as jaxlib_version
 
     leaves, treedef = jax.tree_util.tree_flatten(scene)
     parts = [str(treedef)]
@@ -112,7 +112,7 @@ def executable_key(scene) -> str | None:
     cfg = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
     parts += [
         jax.__version__,
-        jaxlib.__version__,
+        jaxlib_version.__version__,
         dev.platform,
         dev.device_kind,
         dev.client.platform_version,
@@ -133,7 +133,7 @@ def executable_path(key: str | None) -> str | None:
 
     if os.environ.get("RAYTRAX_EXECUTABLE_CACHE", "1") == "0" or key is None:
         return None
-    root = jax.config.jax_compilation_cache_dir
+    root = jax.config.values.get("jax_compilation_cache_dir")
     return os.path.join(root, CACHE_DIR, f"render-{key}.bin") if root else None
 
 

@@ -25,7 +25,7 @@ interrupted write never leaves a half-written (or any) output file.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -129,7 +129,9 @@ def _set_attr(spec, key, value):
         spec.attribute(key, str(value))
 
 
-def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None = None) -> None:
+def save_image(
+    path, img, *, metadata: Mapping | None = None, bits: int | None = None, before_rename: Callable | None = None
+) -> None:
     """Write a linear ``(H, W, 3)`` (or grey ``(H, W)``) float image (numpy or jax
     array) to ``path``.
 
@@ -137,7 +139,10 @@ def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None =
     linear float32 (``bits=16``: half floats); ``.png`` stores sRGB 8-bit, or
     16-bit with ``bits=16``; ``.jpg`` stores sRGB 8-bit. ``metadata`` (a mapping of
     names to strings or numbers) becomes ``raytrax:NAME`` attributes (typed in EXR;
-    as text in PNG). The file appears atomically (temporary file + rename).
+    as text in PNG). The file appears atomically (temporary file + rename);
+    ``before_rename()``, when given, is called once the temporary file is complete,
+    just before the rename: it may raise to abandon the write (the temporary file
+    is removed and ``path`` left as it was; the CLI does so on Ctrl-C).
 
     The values must be linear floats: an integer array (``uint8`` display values,
     say) raises :class:`ImageError` (a ``ValueError``) rather than being taken for
@@ -147,13 +152,6 @@ def save_image(path, img, *, metadata: Mapping | None = None, bits: int | None =
     written. Linear values outside ``[0, 1]`` are kept in EXR and clipped in PNG
     and JPEG.
     """
-    _save_image(path, img, metadata=metadata, bits=bits)
-
-
-def _save_image(path, img, *, metadata=None, bits=None, before_rename=None) -> None:
-    """:func:`save_image`; ``before_rename()``, when given, is called once the
-    temporary file is complete, just before it is renamed into place (it may
-    raise to abandon the write: the temporary file is then removed)."""
     path = os.fspath(path)
     ext = _ext(path)
     if ext not in WRITE_FORMATS:

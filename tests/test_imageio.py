@@ -202,3 +202,20 @@ def test_show_returns_axes(img):
     import matplotlib.pyplot as plt
 
     plt.close("all")
+
+
+def test_before_rename_can_abandon_the_write(tmp_path, img):
+    target = tmp_path / "out.exr"
+    target.write_bytes(b"old")
+    seen = []
+
+    def stop():
+        seen.append(sorted(os.listdir(tmp_path)))  # the complete temporary file is there
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        io.save_image(target, img, before_rename=stop)
+    assert len(seen) == 1 and len(seen[0]) == 2 and seen[0][0].startswith(".out.exr.")
+    assert os.listdir(tmp_path) == ["out.exr"] and target.read_bytes() == b"old"
+    io.save_image(target, img, before_rename=lambda: None)
+    np.testing.assert_array_equal(io.load_image(target), img)
