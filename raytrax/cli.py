@@ -318,25 +318,36 @@ def _texture_text(t) -> str:
     return f", image {t.file!r} {t.image.shape[1]} x {t.image.shape[0]}"
 
 
+def _param_text(key, v) -> str:
+    import numpy as np
+
+    a = np.asarray(v, dtype=np.float64) if not isinstance(v, str) else None
+    if a is None:
+        return f"{key} {v!r}"
+    if a.ndim == 0:
+        return f"{key} {float(a):g}"
+    if a.ndim == 1:
+        return f"{key} {_fmt_vec(a)}" + (" deg" if key == "rotation" else "")
+    return f"{key} " + " ".join(_fmt_vec(r) for r in a)
+
+
 def _object_text(o) -> str:
+    """One line per object; every kind of the registry by its keys (a mesh by its size)."""
+    import numpy as np
+
+    from .shapes import BY_NAME as KIND_BY_NAME
+
     p = o.params
-    if o.type == "sphere":
-        g = f"center {_fmt_vec(p['center'])}, radius {p['radius']:g}"
-    elif o.type == "plane":
-        g = f"point {_fmt_vec(p['point'])}, normal {_fmt_vec(p['normal'])}"
-    elif o.type == "quad":
-        g = "corners " + " ".join(_fmt_vec(c) for c in p["corners"])
-    elif o.type == "triangle":
-        g = "vertices " + " ".join(_fmt_vec(c) for c in p["vertices"])
-    elif o.type == "box":
-        g = f"min {_fmt_vec(p['min'])}, max {_fmt_vec(p['max'])}"
-        if any(p.get("rotation", (0, 0, 0))):
-            g += f", rotation {_fmt_vec(p['rotation'])} deg"
-    elif o.type == "tetrahedron":
-        g = f"center {_fmt_vec(p['center'])}, size {p['size']:g}"
-    else:
+    if o.type == "mesh":
         src = f"{p['file']!r}, " if "file" in p else "inline, "
         g = src + f"{len(p['vertices'])} vertices, {len(p['faces'])} triangles"
+    else:
+        spec = KIND_BY_NAME[o.type]
+        g = ", ".join(
+            _param_text(k.name, p[k.name])
+            for k in spec.keys
+            if k.name in p and not (k.default is not None and np.allclose(p[k.name], k.default))
+        )
     return f"{o.type:<11} {o.material:<14} {g}"
 
 
@@ -350,7 +361,10 @@ def cost_estimate(desc) -> dict:
     shading_points = camera + secondary
     shadow = shading_points * len(desc.lights)
     c = desc.primitive_counts()
-    prims = c["sphere"] + c["plane"] + c["quad"] + c["box"] + c["triangles_total"]
+    from .shapes import KINDS
+
+    # Primitives the search tests: every kind's own, plus the merged triangle list.
+    prims = sum(c[k.name] for k in KINDS if not k.triangle_family) + c["triangles_total"]
     return dict(
         pixels=r.width * r.height,
         camera_rays=camera,
@@ -376,9 +390,16 @@ def _cmd_info(args) -> int:
         f"fov {c.fov:g} deg",
         f"lights ({len(d.lights)}):",
     ]
-    unit = "" if d.shading == "classic" else " W/sr"
+    from .lights import BY_NAME as LIGHT_BY_NAME
+
+    units = {"intensity": " W/sr", "irradiance": " W/m^2"}
     for i, light in enumerate(d.lights):
-        out.append(f"  [{i}] position {_fmt_vec(light.position)}, intensity {_fmt_rgb(light.intensity)}{unit}")
+        parts = []
+        for k in LIGHT_BY_NAME[light.type].keys:
+            v = light.params[k.name]
+            unit = "" if d.shading == "classic" else units.get(k.name, "")
+            parts.append(f"{k.name} {_fmt_rgb(v) if k.ftype == 'rgb' else _fmt_vec(v)}{unit}")
+        out.append(f"  [{i}] {light.type}: " + ", ".join(parts))
     out.append(f"materials ({len(d.materials)}):")
     w = max(len(n) for n in d.materials)
     for name, m in d.materials.items():
@@ -388,10 +409,12 @@ def _cmd_info(args) -> int:
     out.append(f"objects ({len(d.objects)}):")
     for i, o in enumerate(d.objects):
         out.append(f"  [{i}] {_object_text(o)}")
+    from .shapes import OBJECT_TYPES
+
     counts = d.primitive_counts()
     listed = ", ".join(
         f"{counts[k]} {k}{'es' if k == 'box' and counts[k] != 1 else ('s' if counts[k] != 1 else '')}"
-        for k in ("sphere", "plane", "quad", "triangle", "box", "tetrahedron", "mesh")
+        for k in OBJECT_TYPES
         if counts[k]
     )
     e = cost_estimate(d)
