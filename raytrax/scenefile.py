@@ -43,12 +43,14 @@ from typing import Any
 
 import numpy as np
 
+from . import limits as L
 from . import textures as tx
 from ._atomic import atomic_path
 from .lights import BY_NAME as LIGHT_BY_NAME
 from .lights import LIGHT_TYPES as _LIGHT_TYPES
 from .lights import LIGHTS
-from .scene import SHADING_MODELS, Scene, SceneBuilder
+from .limits import LIMITS, SEED_FOV, SHADING_MODELS, check_render_value  # noqa: F401 - names of this module too
+from .scene import Scene, SceneBuilder
 from .shapes import BY_NAME as KIND_BY_NAME
 from .shapes import KINDS
 from .shapes import OBJECT_TYPES as _KINDS_OBJECT_TYPES
@@ -69,6 +71,7 @@ __all__ = [
     "dumps_scene",
     "describe_scene",
     "LIMITS",
+    "SEED_FOV",
     "check_render_value",
 ]
 
@@ -77,24 +80,15 @@ class SceneError(ValueError):
     """A scene file (or a scene description) is invalid; the message says where and why."""
 
 
-#: Upper bounds beyond which a value is rejected as absurd.
-LIMITS = dict(
-    side=65536,  # pixels per image side
-    pixels=100_000_000,  # width * height
-    spp=1024,
-    max_depth=64,
-    lights=256,
-    materials=4096,
-    objects=100_000,
-    mesh_faces=5_000_000,  # over all meshes
-    texture_pixels=100_000_000,  # per image texture
-)
+# LIMITS (upper bounds beyond which a value is rejected as absurd), the defaults and
+# the value ranges live in raytrax.limits, shared with SceneBuilder; LIMITS is the
+# same dict object, so changing an entry here changes it for the builder too.
 
 OBJECT_TYPES = _KINDS_OBJECT_TYPES  # every registered kind (raytrax.shapes.registry)
 LIGHT_TYPES = _LIGHT_TYPES  # every registered light type (raytrax.lights.registry)
 TEXTURE_KINDS = ("checker", "stripes", "image", "builtin")
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".off")
-SEED_FOV = 2 * math.degrees(math.atan(10 / 40))
+_R, _C, _M, _T = L.RENDER_DEFAULTS, L.CAMERA_DEFAULTS, L.MATERIAL_DEFAULTS, L.TEXTURE_DEFAULTS
 
 
 # -----------------------------------------------------------------------------
@@ -104,21 +98,25 @@ SEED_FOV = 2 * math.degrees(math.atan(10 / 40))
 
 @dataclasses.dataclass
 class CameraDesc:
-    position: tuple = (0.0, 0.0, 0.0)
-    look_at: tuple = (0.0, 0.0, -1.0)
-    up: tuple = (0.0, 1.0, 0.0)
-    fov: float = SEED_FOV  # vertical, degrees
+    """``[camera]``; defaults from :data:`raytrax.limits.CAMERA_DEFAULTS`."""
+
+    position: tuple = _C.position
+    look_at: tuple = _C.look_at
+    up: tuple = _C.up
+    fov: float = _C.fov  # vertical, degrees (SEED_FOV)
 
 
 @dataclasses.dataclass
 class RenderDesc:
-    width: int = 640
-    height: int = 480
-    spp: int = 1
-    max_depth: int = 5
-    background: tuple = (0.0, 0.0, 0.0)
-    ambient: tuple = (0.2, 0.2, 0.2)
-    filter_textures: bool = True
+    """``[render]``; defaults from :data:`raytrax.limits.RENDER_DEFAULTS` (640 x 480)."""
+
+    width: int = _R.width
+    height: int = _R.height
+    spp: int = _R.spp
+    max_depth: int = _R.max_depth
+    background: tuple = _R.background
+    ambient: tuple = _R.ambient
+    filter_textures: bool = _R.filter_textures
 
 
 @dataclasses.dataclass
@@ -143,9 +141,9 @@ class TextureDesc:
     pixels for image and builtin textures."""
 
     kind: str
-    color2: tuple = (0.0, 0.0, 0.0)
-    scale: float = 1.0
-    direction: tuple = (0.0, 1.0)
+    color2: tuple = _T.color2
+    scale: float = _T.scale
+    direction: tuple = _T.direction
     file: str | None = None
     name: str | None = None
     image: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
@@ -156,19 +154,22 @@ class TextureDesc:
             return tx.Checker(color2=tuple(self.color2), scale=float(self.scale))
         if self.kind == "stripes":
             return tx.Stripes(color2=tuple(self.color2), scale=float(self.scale), direction=tuple(self.direction))
-        return tx.ImageTexture(image=self.image, name=self.name or self.file or "")
+        # image is None only in a hand-made description: the builder names the material
+        return tx.ImageTexture(image=self.image, name=self.name or self.file or "")  # pyright: ignore[reportArgumentType]
 
 
 @dataclasses.dataclass
 class MaterialDesc:
-    color: tuple = (1.0, 1.0, 1.0)
-    ambient: float = 1.0
-    diffuse: float = 1.0
-    specular: float = 0.0
-    shininess: float = 10.0
-    reflectivity: tuple = (0.0, 0.0, 0.0)
-    transparency: float = 0.0
-    ior: float = 1.0
+    """``[material.NAME]``; defaults from :data:`raytrax.limits.MATERIAL_DEFAULTS`."""
+
+    color: tuple = _M.color
+    ambient: float = _M.ambient
+    diffuse: float = _M.diffuse
+    specular: float = _M.specular
+    shininess: float = _M.shininess
+    reflectivity: tuple = _M.reflectivity
+    transparency: float = _M.transparency
+    ior: float = _M.ior
     texture: TextureDesc | None = None
 
 
@@ -256,7 +257,7 @@ class SceneDescription:
             if msg:
                 raise SceneError(f"{self.source}: render.{k}: {msg}")
         r = dataclasses.replace(self.render, **kw)
-        msg = _check_pixels(r.width, r.height)
+        msg = L.check_pixels(r.width, r.height)
         if msg:
             raise SceneError(f"{self.source}: render: {msg}")
         return dataclasses.replace(self, render=r)
@@ -286,35 +287,14 @@ class _KeyError(Exception):
         self.msg = msg
 
 
-_BARE = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def _key(name: str) -> str:
-    return name if _BARE.match(name) else _quote(name)
+_key = L.toml_key  # a table key as a key path writes it (quoted unless bare)
 
 
 def _join(path: str, key: str) -> str:
     return f"{path}.{_key(key)}" if path else _key(key)
 
 
-def _show(v) -> str:
-    """How a found value is described in messages."""
-    if isinstance(v, bool):
-        return f"the boolean {str(v).lower()}"
-    if isinstance(v, int):
-        return f"the integer {v}"
-    if isinstance(v, float):
-        return f"the number {v!r}"
-    if isinstance(v, str):
-        s = v if len(v) <= 40 else v[:37] + "..."
-        return f"the string {s!r}"
-    if isinstance(v, list):
-        if not v:
-            return "an empty array"
-        return f"an array of {len(v)} item{'s' if len(v) != 1 else ''}"
-    if isinstance(v, dict):
-        return "a table" + (f" with keys {', '.join(list(v)[:6])}" if v else " (empty)")
-    return f"a {type(v).__name__} ({v})"
+_show = L.show_value  # how a found value is described in messages
 
 
 def _is_num(v) -> bool:
@@ -322,6 +302,8 @@ def _is_num(v) -> bool:
 
 
 def _num(v, path, *, lo=None, hi=None, lo_open=False, hi_open=False, what="a number") -> float:
+    """A finite number (in ``[lo, hi]``, ends open as told), else a _KeyError
+    "expected ``what``, got ...". See :func:`_in` for the shared ranges."""
     if not _is_num(v):
         raise _KeyError(path, f"expected {what}, got {_show(v)}")
     x = float(v)
@@ -330,6 +312,11 @@ def _num(v, path, *, lo=None, hi=None, lo_open=False, hi_open=False, what="a num
     if lo is not None and (x < lo or (lo_open and x == lo)) or hi is not None and (x > hi or (hi_open and x == hi)):
         raise _KeyError(path, f"expected {what}, got {v!r}")
     return x
+
+
+def _in(v, path, rng: L.Range) -> float:
+    """A number in the shared range ``rng`` (:mod:`raytrax.limits`)."""
+    return _num(v, path, lo=rng.lo, hi=rng.hi, lo_open=rng.lo_open, hi_open=rng.hi_open, what=rng.what)
 
 
 def _int(v, path, *, lo=None, hi=None, what="an integer") -> int:
@@ -349,20 +336,19 @@ def _vec(v, path, n=3, what=None) -> tuple:
     return tuple(_num(x, f"{path}[{i}]") for i, x in enumerate(v))
 
 
-def _rgb(v, path, *, hi=None) -> tuple:
-    """An RGB triple: ``[r, g, b]`` or one number for grey; non-negative (and <= hi)."""
-    rng = "non-negative numbers" if hi is None else f"numbers in [0, {hi:g}]"
-    what = f"an [r, g, b] array of {rng} (or one number for grey)"
+def _rgb(v, path, rng: L.Range = L.RGB_NON_NEGATIVE) -> tuple:
+    """An RGB triple: ``[r, g, b]`` or one number for grey, each in ``rng``
+    (non-negative unless told; see :mod:`raytrax.limits`)."""
     if _is_num(v):
         x = _num(v, path)
         c = (x, x, x)
     elif isinstance(v, list) and len(v) == 3:
         c = tuple(_num(x, f"{path}[{i}]") for i, x in enumerate(v))
     else:
-        raise _KeyError(path, f"expected {what}, got {_show(v)}")
-    if any(x < 0 for x in c) or (hi is not None and any(x > hi for x in c)):
-        found = v if _is_num(v) else list(c)
-        raise _KeyError(path, f"expected {what}, got {found}")
+        raise _KeyError(path, f"expected {L.rgb_what(rng)}, got {_show(v)}")
+    msg = L.rgb_problem(c, rng, v if _is_num(v) else None)
+    if msg:
+        raise _KeyError(path, msg)
     return c
 
 
@@ -401,46 +387,8 @@ def _did_you_mean(value: str, options) -> str:
     return f" (did you mean {near[0]!r}?)" if near else ""
 
 
-def _check_pixels(width, height) -> str | None:
-    if width * height > LIMITS["pixels"]:
-        return (
-            f"expected at most {LIMITS['pixels']:,} pixels, got width x height = {width} x {height} "
-            f"= {width * height:,}"
-        )
-    return None
-
-
-def check_render_value(key: str, value) -> str | None:
-    """The problem with a ``[render]`` setting (``width``, ``height``, ``spp``,
-    ``max_depth``) as ``"expected ..., got ..."``, or ``None`` when it is fine.
-    Shared by the scene loader and the CLI's overrides."""
-    if key in ("width", "height"):
-        if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= LIMITS["side"]:
-            return f"expected an integer number of pixels in [1, {LIMITS['side']}], got {_value_text(value)}"
-    elif key == "spp":
-        if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= LIMITS["spp"]:
-            return f"expected a square number of samples per pixel in [1, {LIMITS['spp']}], got {_value_text(value)}"
-        if math.isqrt(value) ** 2 != value:
-            lo = math.isqrt(value)
-            return (
-                f"expected a square number of samples per pixel (1, 4, 9, 16, ...; an n x n grid), got {value} "
-                f"(nearest: {lo * lo} or {(lo + 1) ** 2})"
-            )
-    elif key == "max_depth":
-        if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= LIMITS["max_depth"]:
-            return f"expected an integer in [0, {LIMITS['max_depth']}], got {_value_text(value)}"
-    elif key in ("filter_textures",):
-        if not isinstance(value, bool):
-            return f"expected true or false, got {_value_text(value)}"
-    return None
-
-
 def _got(v) -> str:
     return repr(v) if isinstance(v, str) else _show(v)
-
-
-def _value_text(v):
-    return str(v) if _is_num(v) else _show(v)
 
 
 # -----------------------------------------------------------------------------
@@ -504,16 +452,9 @@ class _Parser:
         if not isinstance(name, str):
             raise _KeyError("name", f"expected a string, got {_show(name)}")
         shading = data.get("shading", "classic")
-        if not isinstance(shading, str):
-            raise _KeyError(
-                "shading", f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got {_show(shading)}"
-            )
-        if shading not in SHADING_MODELS:
-            raise _KeyError(
-                "shading",
-                f"expected one of {', '.join(repr(s) for s in SHADING_MODELS)}, got "
-                f"{shading!r}{_did_you_mean(shading, SHADING_MODELS)}",
-            )
+        msg = L.check_shading(shading)
+        if msg:
+            raise _KeyError("shading", msg)
         self.shading = shading
         camera = self.camera(data.get("camera", {}))
         render = self.render(data.get("render", {}))
@@ -523,8 +464,9 @@ class _Parser:
             raise _KeyError("light", "expected an array of tables ([[light]] sections), got a table ([light])")
         if not isinstance(lights_raw, list):
             raise _KeyError("light", f"expected an array of tables ([[light]] sections), got {_show(lights_raw)}")
-        if len(lights_raw) > LIMITS["lights"]:
-            raise _KeyError("light", f"expected at most {LIMITS['lights']} lights, got {len(lights_raw)}")
+        msg = L.check_count("light", len(lights_raw))
+        if msg:
+            raise _KeyError("light", msg)
         lights = [self.light(v, f"light[{i}]") for i, v in enumerate(lights_raw)]
 
         mats_raw = data.get("material", {})
@@ -539,8 +481,9 @@ class _Parser:
             )
         if not mats_raw:
             raise _KeyError("material", "expected at least one material ([material.NAME] section), found none")
-        if len(mats_raw) > LIMITS["materials"]:
-            raise _KeyError("material", f"expected at most {LIMITS['materials']} materials, got {len(mats_raw)}")
+        msg = L.check_count("material", len(mats_raw))
+        if msg:
+            raise _KeyError("material", msg)
         materials = {}
         for mname, v in mats_raw.items():
             materials[mname] = self.material(v, _join("material", mname))
@@ -550,19 +493,18 @@ class _Parser:
             raise _KeyError("object", "expected an array of tables ([[object]] sections), got a table ([object])")
         if not isinstance(objs_raw, list):
             raise _KeyError("object", f"expected an array of tables ([[object]] sections), got {_show(objs_raw)}")
-        if len(objs_raw) > LIMITS["objects"]:
-            raise _KeyError("object", f"expected at most {LIMITS['objects']} objects, got {len(objs_raw)}")
+        msg = L.check_count("object", len(objs_raw))
+        if msg:
+            raise _KeyError("object", msg)
         objects = []
         faces_total = 0
         for i, v in enumerate(objs_raw):
             o = self.object(v, f"object[{i}]", materials)
             if o.type == "mesh":
                 faces_total += int(o.params["faces"].shape[0])
-                if faces_total > LIMITS["mesh_faces"]:
-                    raise _KeyError(
-                        f"object[{i}]",
-                        f"expected at most {LIMITS['mesh_faces']:,} mesh triangles in all, got {faces_total:,} so far",
-                    )
+                msg = L.check_mesh_faces(faces_total)
+                if msg:
+                    raise _KeyError(f"object[{i}]", msg)
             objects.append(o)
         return SceneDescription(
             name=name,
@@ -584,15 +526,7 @@ class _Parser:
             if k in t:
                 setattr(d, k, _vec(t[k], f"camera.{k}"))
         if "fov" in t:
-            d.fov = _num(
-                t["fov"],
-                "camera.fov",
-                lo=0.0,
-                hi=180.0,
-                lo_open=True,
-                hi_open=True,
-                what="a vertical field of view in degrees, in (0, 180)",
-            )
+            d.fov = _in(t["fov"], "camera.fov", L.FOV)
         return d
 
     def render(self, t) -> RenderDesc:
@@ -605,12 +539,12 @@ class _Parser:
                 if msg:
                     raise _KeyError(f"render.{k}", msg)
                 setattr(d, k, t[k])
-        msg = _check_pixels(d.width, d.height)
+        msg = L.check_pixels(d.width, d.height)
         if msg:
             raise _KeyError("render", msg)
         for k in ("background", "ambient"):
             if k in t:
-                setattr(d, k, _rgb(t[k], f"render.{k}"))
+                setattr(d, k, _rgb(t[k], f"render.{k}", L.ENVIRONMENT_RGB))
         return d
 
     def light(self, t, path) -> LightDesc:
@@ -646,20 +580,14 @@ class _Parser:
     def material(self, t, path) -> MaterialDesc:
         t = _table(t, path, "a table of material properties")
         _check_keys(t, path, MATERIAL_KEYS, context="a material")
-        phys = self.shading == "physical"
-        hi = 1.0 if phys else None
+        ranges = L.material_ranges(self.shading)
         d = MaterialDesc()
-        if "color" in t:
-            d.color = _rgb(t["color"], f"{path}.color", hi=hi)
-        for k in ("ambient", "diffuse", "specular", "shininess"):
+        for k in ("color", "reflectivity"):
             if k in t:
-                setattr(d, k, _num(t[k], f"{path}.{k}", lo=0.0, what="a non-negative number"))
-        if "reflectivity" in t:
-            d.reflectivity = _rgb(t["reflectivity"], f"{path}.reflectivity", hi=hi)
-        if "transparency" in t:
-            d.transparency = _num(t["transparency"], f"{path}.transparency", lo=0.0, hi=1.0, what="a number in [0, 1]")
-        if "ior" in t:
-            d.ior = _num(t["ior"], f"{path}.ior", lo=1.0, hi=10.0, what="a refractive index in [1, 10]")
+                setattr(d, k, _rgb(t[k], f"{path}.{k}", ranges[k]))
+        for k in ("ambient", "diffuse", "specular", "shininess", "transparency", "ior"):
+            if k in t:
+                setattr(d, k, _in(t[k], f"{path}.{k}", ranges[k]))
         if "texture" in t:
             d.texture = self.texture(t["texture"], f"{path}.texture")
         return d
@@ -676,9 +604,9 @@ class _Parser:
         d = TextureDesc(kind=kind)
         if kind in ("checker", "stripes"):
             if "color2" in t:
-                d.color2 = _rgb(t["color2"], f"{path}.color2", hi=1.0 if self.shading == "physical" else None)
+                d.color2 = _rgb(t["color2"], f"{path}.color2", L.material_ranges(self.shading)["color"])
             if "scale" in t:
-                d.scale = _num(t["scale"], f"{path}.scale", lo=0.0, lo_open=True, what="a positive number")
+                d.scale = _in(t["scale"], f"{path}.scale", L.TEXTURE_SCALE)
             if kind == "stripes" and "direction" in t:
                 d.direction = _vec(t["direction"], f"{path}.direction", 2, "a [du, dv] array of 2 numbers")
                 if d.direction == (0.0, 0.0):
@@ -691,11 +619,9 @@ class _Parser:
                 img = load_image(full)
             except (OSError, ValueError) as e:
                 raise _KeyError(f"{path}.file", f"expected a readable image, got an error: {e}") from None
-            if img.shape[0] * img.shape[1] > LIMITS["texture_pixels"]:
-                raise _KeyError(
-                    f"{path}.file",
-                    f"expected at most {LIMITS['texture_pixels']:,} pixels, got {img.shape[1]} x {img.shape[0]}",
-                )
+            msg = L.check_texture_pixels(img.shape[0], img.shape[1])
+            if msg:
+                raise _KeyError(f"{path}.file", msg)
             d.file, d.image, d.source = t["file"], img, full
         else:
             name = t["name"]
@@ -763,7 +689,7 @@ class _Parser:
             try:
                 import trimesh
 
-                m = trimesh.load(full, force="mesh", process=False)
+                m: Any = trimesh.load(full, force="mesh", process=False)  # a Trimesh (force="mesh")
                 v = np.asarray(m.vertices, dtype=np.float64)
                 f = np.asarray(m.faces, dtype=np.int64)
             except Exception as e:  # trimesh raises many types on bad input
@@ -1016,24 +942,7 @@ def describe_scene(scene: Scene) -> SceneDescription:
 # -----------------------------------------------------------------------------
 
 
-def _quote(s: str) -> str:
-    out = ['"']
-    for ch in s:
-        o = ord(ch)
-        if ch == '"':
-            out.append('\\"')
-        elif ch == "\\":
-            out.append("\\\\")
-        elif ch == "\n":
-            out.append("\\n")
-        elif ch == "\t":
-            out.append("\\t")
-        elif o < 0x20 or o == 0x7F:
-            out.append(f"\\u{o:04X}")
-        else:
-            out.append(ch)
-    out.append('"')
-    return "".join(out)
+_quote = L.toml_string
 
 
 class _Writer:

@@ -512,8 +512,8 @@ ERRORS = [
         edit('shading = "classic"', 'shading = "physical"').replace(
             "color = [0.5, 0.5, 0.5]", "color = [1.2, 0.5, 0.5]"
         ),
-        r"material.m.color: expected an \[r, g, b\] array of numbers in \[0, 1\] \(or one number for grey\), "
-        r"got \[1.2, 0.5, 0.5\]",
+        r"material.m.color: expected an \[r, g, b\] array of numbers in \[0, 1\] in physical shading "
+        r"\(or one number for grey\), got \[1.2, 0.5, 0.5\]",
     ),
     (
         edit('shading = "classic"', 'shading = "physical"').replace("color = [0.5, 0.5, 0.5]", "reflectivity = 2"),
