@@ -17,7 +17,7 @@ from typing import ClassVar, NamedTuple
 import jax
 import numpy as np
 
-from ..shapes.base import F64, Key
+from ..shapes.base import F64, Key, check_stored
 
 
 class LightSample(NamedTuple):
@@ -59,7 +59,10 @@ class LightSpec:
                 out[k.name] = F64(a, k.shape)
             except ValueError as e:
                 raise ValueError(f"{where}.{k.name}: {e}") from None
+            if k.ftype == "rgb" and np.any(out[k.name] < 0):
+                raise ValueError(f"{where}.{k.name}: expected non-negative numbers, got {out[k.name].tolist()}")
         self.check(out, where)
+        check_stored(self, out, where)
         return out
 
     def check(self, p: dict, where: str) -> None:

@@ -134,6 +134,27 @@ def F64(x, shape=None):
     return a
 
 
+def check_stored(spec, p: dict, where: str) -> None:
+    """Run ``spec.check`` again on the values as a float32 scene stores them: a value
+    that rounds to infinity, or geometry that rounding makes degenerate (a radius to 0,
+    a quad's corners out of plane), is refused here rather than by the loader later."""
+    stored = {}
+    for k, v in p.items():
+        a = np.asarray(v)
+        if not np.issubdtype(a.dtype, np.floating):
+            stored[k] = a
+            continue
+        with np.errstate(over="ignore"):
+            s = a.astype(np.float32)
+        if not np.all(np.isfinite(s)):
+            raise ValueError(f"{where}.{k}: expected numbers within the float32 range, got {v!r}")
+        stored[k] = s.astype(np.float64)
+    try:
+        spec.check(stored, where)
+    except ValueError as e:
+        raise ValueError(f"{e} (the value as stored in float32)") from None
+
+
 def _plain(x):
     """``x`` (array) as nested Python floats (tuples), or a float."""
     a = np.asarray(x, np.float64)
@@ -177,6 +198,7 @@ class KindSpec:
             except ValueError as e:
                 raise ValueError(f"{where}.{k.name}: {e}") from None
         self.check(out, where)
+        check_stored(self, out, where)
         return out
 
     def check(self, p: dict, where: str) -> None:
