@@ -1,0 +1,55 @@
+"""Edge events: a pair of neighbouring samples whose records differ, the chain they
+share, and the edge function ``G(x)`` that separates them."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .. import vec as V
+from ..camera import rays_through
+from .prims import Prims, first_t, miss, specular_step
+
+MISS, DEPTH, SHADOW = 0, 1, 2
+
+
+class Events(NamedTuple):
+    typ: jax.Array  # (E,) MISS, DEPTH or SHADOW
+    level: jax.Array  # (E,) chain level of the edge (0: seen directly)
+    chain: jax.Array  # (D, E) primitives of the shared chain (levels < level are used)
+    refr: jax.Array  # (D, E) the chain refracts (else reflects) at that level
+    p1: jax.Array  # (E,) primitive missed (MISS), A (DEPTH), receiver (SHADOW)
+    p2: jax.Array  # (E,) B (DEPTH), occluder (SHADOW)
+    light: jax.Array  # (E,) light index (SHADOW)
+    sign: jax.Array  # (E,) +-1: g = sign * G is <= 0 on the first sample's side
+
+
+def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
+    """The ray at each event's chain level, for image positions ``xy (2, E)``."""
+    o, d = rays_through(scene.camera, xy, width, height)
+    for lv in range(ev.chain.shape[0] - 1):
+        o2, d2, _ = specular_step(P, ns, ev.chain[lv], ev.refr[lv], o, d)
+        go = lv < ev.level
+        o, d = V.vsel(go, o2, o), V.vsel(go, d2, d)
+    return o, d
+
+
+def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False):
+    """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``), and
+    with ``feature=True`` also the feature of :func:`miss` (0 for depth crossings)."""
+    o, d = chain_ray(scene, P, ns, ev, xy, width, height)
+    ta = first_t(P, ns, ev.p1, o, d)
+    tb = first_t(P, ns, ev.p2, o, d)
+    shadow = ev.typ == SHADOW
+    p = o + ta[None] * d
+    li = jnp.clip(ev.light, 0, P.light.shape[1] - 1)
+    L = P.light[:, li]
+    toward = V.vsel(P.ldir[li], V.normalize(-L), V.normalize(L - p))
+    o2 = V.vsel(shadow, p, o)
+    d2 = V.vsel(shadow, toward, d)
+    m, f = miss(P, ns, jnp.where(ev.typ == MISS, ev.p1, ev.p2), o2, d2)
+    depth = ev.typ == DEPTH
+    G = jnp.where(depth, ta - tb, m)
+    return (G, jnp.where(depth, 0, f)) if feature else G

@@ -1,0 +1,150 @@
+"""The stop-gradient sample records: what each camera ray's specular chain meets
+(primitive, branch, the first and last occluder towards each light, the hard pattern
+cell), level by level."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .. import textures as tx
+from .. import vec as V
+from ..camera import rays_through
+from ..intersect import closest_kind, no_hit
+from ..textures import pattern_cell
+from .prims import Prims, kind_ids, specular_step
+
+
+def search(scene, kinds, off, o, d, tmax=None):
+    """Global id (-1: none) and distance of the first primitive along rays ``o, d``
+    (closer than ``tmax`` when given)."""
+    n = o.shape[1]
+    ray = (o[0], o[1], o[2], d[0], d[1], d[2])
+    best_t = jnp.full((n,), jnp.inf, o.dtype)
+    best_id = jnp.full((n,), -1, jnp.int32)
+    for k in kinds:
+        t, idx = closest_kind(k, ray, 0.0)
+        start, _, per = kind_ids(off, k)
+        gid = start + per * idx
+        if per > 1:  # which face of the primitive (a box's)
+            group = scene.prims[k.spec.field]
+            gid = gid + k.spec.edge_face(group, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
+        better = t < best_t
+        best_t = jnp.where(better, t, best_t)
+        best_id = jnp.where(better, gid, best_id)
+    if tmax is not None:
+        best_id = jnp.where(best_t < tmax, best_id, -1)
+    return best_id, best_t
+
+
+class Records(NamedTuple):
+    """What the specular chain of each camera ray meets (no gradient), ``D`` levels."""
+
+    hit: jax.Array  # (D, M) primitive at each level; -1 background, -2 the chain has ended
+    refr: jax.Array  # (D, M) the chain refracts (else reflects) at that hit
+    first: jax.Array  # (D, L, M) first occluder between the hit and each light (-1: none; see object_key)
+    last: jax.Array  # (D, L, M) last occluder
+    cell: jax.Array  # (D, M) the hard procedural pattern at the hit (0 / 1; see textures.pattern_cell)
+
+
+def object_key(P: Prims, ns, g):
+    """The object of global primitive ids ``g`` (-1 stays -1): the first face of a
+    convex solid for each of its faces, else the primitive itself."""
+    pi = jnp.clip(g - ns, 0, P.solid.shape[0] - 1)
+    solid = (g >= ns) & (P.solid[pi] >= 0)
+    return jnp.where(solid, ns + P.solid[pi], g)
+
+
+def occluders(scene, kinds, off, P: Prims, p, hit):
+    """First and last occluder ``(L, M)`` on the segments from points ``p (3, M)``
+    to each light (-1: none, or ``~hit``); a directional light's segment runs to
+    beyond every finite primitive."""
+    eps = 1e-4 * (1.0 + jnp.max(jnp.abs(p), 0))
+
+    def one(args):
+        Lpos, isd = args
+        Lp = Lpos[:, None]
+        Lv = Lp - p
+        ld = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), V.normalize(jnp.broadcast_to(-Lp, p.shape)), V.normalize(Lv))
+        dist = jnp.where(isd, P.far + V.norm(p), V.norm(Lv))
+        end = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), p + dist[None] * ld, jnp.broadcast_to(Lp, p.shape))
+        f, _ = search(scene, kinds, off, p + eps[None] * ld, ld, dist - 2 * eps)
+        la, _ = search(scene, kinds, off, end, -ld, dist - 2 * eps)
+        return jnp.where(hit, f, -1), jnp.where(hit, la, -1)
+
+    return jax.lax.map(one, (P.light.T, P.ldir))
+
+
+def hit_cell(scene, kinds, off, gid, o, d, t, mat):
+    """The hard pattern colour (0 / 1) at the hits ``gid`` of rays ``o, d`` at distance
+    ``t``; all 0 when no material has a checker or stripes."""
+    mats = scene.materials
+    if tx.CHECKER not in mats.kinds_present and tx.STRIPES not in mats.kinds_present:
+        return jnp.zeros(gid.shape, jnp.int32)
+    uv = jnp.zeros((2,) + gid.shape, o.dtype)
+    for k in kinds:
+        start, end, per = kind_ids(off, k)
+        sel = (gid >= start) & (gid < end)
+        idx = jnp.where(sel, (gid - start) // per, 0)
+        _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t, 0.0))
+        uv = jnp.where(sel[None], uvk, uv)
+    return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
+
+
+def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
+    """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
+    ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``."""
+    o, d = rays_through(scene.camera, xy, width, height)
+    M = xy.shape[1]
+    ns = off["ns"]
+    L = scene.n_lights
+
+    def live(o, d, alive):
+        gid, t = search(scene, kinds, off, o, d)
+        gid = jnp.where(alive, gid, -2)
+        hit = gid >= 0
+        p = o + jnp.where(hit, t, 0.0)[None] * d
+        if L:
+            # Occluders as objects: a convex solid is its first face, whichever faces
+            # the shadow segment crosses.
+            first, last = (object_key(P, ns, x) for x in occluders(scene, kinds, off, P, p, hit))
+        else:
+            first = last = jnp.zeros((0, M), jnp.int32)
+        mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]
+        T, R = P.trans[mat], P.refl[mat]
+        cont = hit & ((T > 0) | (R > 0))
+        o2, d2, refr = specular_step(P, ns, gid, (T > 0) & (T >= R), o, d)
+        cell = hit_cell(scene, kinds, off, gid, o, d, jnp.where(hit, t, 0.0), mat)
+        return (o2, d2, cont), (gid, cont & refr, first, last, cell)
+
+    def dead(o, d, alive):  # no chain continues: skip the searches
+        none = jnp.full((L, M), -1, jnp.int32)
+        return (o, d, alive), (
+            jnp.full((M,), -2, jnp.int32),
+            jnp.zeros((M,), bool),
+            none,
+            none,
+            jnp.zeros((M,), jnp.int32),
+        )
+
+    def level(carry, _):
+        return jax.lax.cond(jnp.any(carry[2]), live, dead, *carry)
+
+    # One compiled level, scanned over the chain (levels after the last mirror or glass
+    # hit of every ray cost nothing).
+    _, out = jax.lax.scan(level, (o, d, jnp.ones((M,), bool)), None, length=depth)
+    return Records(*out)
+
+
+def records_equal(r1: Records, r2: Records):
+    """Records ``(.., M)`` equal in every field, ``(M,)``."""
+    eq = jnp.all(r1.hit == r2.hit, 0) & jnp.all(r1.refr == r2.refr, 0) & jnp.all(r1.cell == r2.cell, 0)
+    if r1.first.shape[1]:
+        eq = eq & jnp.all(r1.first == r2.first, (0, 1)) & jnp.all(r1.last == r2.last, (0, 1))
+    return eq
+
+
+def records_slice(r: Records, s: slice) -> Records:
+    return Records(*(x[..., s] for x in r))

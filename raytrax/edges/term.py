@@ -1,0 +1,540 @@
+"""The boundary term: finding edge crossings between neighbouring samples,
+classifying and locating them, cutting edge pieces, measuring jumps, and the
+silhouette quadrature (the method is described in :mod:`raytrax.edges`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import vec as V
+from ..intersect import prepare
+from .events import DEPTH, MISS, SHADOW, Events, edge_value
+from .prims import build_prims
+from .records import Records, object_key, records, records_equal, records_slice
+
+BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
+END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
+NEWTON_STEPS = 3  # following an edge to the neighbouring row
+CHUNK = 512  # events solved per step of the (skippable) chunk loop
+QUAD_SAMPLES = 2  # inside samples of a sphere's silhouette row replaced by a quadrature
+QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeOptions:
+    """Static options of the boundary term: ``samples`` per pixel side (``n``),
+    ``budget``, the most sample pairs with an edge between them (``None``: a
+    quarter of all samples, at least 4096), and ``depth``, the chain levels
+    followed (the render's ``max_depth + 1``)."""
+
+    samples: int = 4
+    budget: int | None = None
+    depth: int = 1
+
+
+def _pairs(Gw, Gh):
+    j = jnp.arange(Gw)
+    i = jnp.arange(Gh)
+    a_h = (i[:, None] * Gw + j[None, :-1]).ravel()
+    a_v = (i[:-1, None] * Gw + j[None, :]).ravel()
+    a = jnp.concatenate([a_h, a_v]).astype(jnp.int32)
+    b = jnp.concatenate([a_h + 1, a_v + Gw]).astype(jnp.int32)
+    horiz = jnp.concatenate([jnp.ones_like(a_h, bool), jnp.zeros_like(a_v, bool)])
+    return a, b, horiz
+
+
+def at_level(x, level):
+    """``x (D, E)`` at each event's ``level (E,)``."""
+    return jnp.take_along_axis(x, level[None], 0)[0]
+
+
+def _pieces(p0, p1, width, height):
+    """Split the segments ``p0 -> p1 (2, E)`` at pixel boundaries (at most one per
+    axis): pixel ids ``(3, E)`` and length fractions ``(3, E)`` of the three pieces."""
+
+    def cross(c0, c1):
+        has = jnp.floor(c0) != jnp.floor(c1)
+        tau = V.safe_div(jnp.floor(jnp.maximum(c0, c1)) - c0, c1 - c0)
+        return jnp.where(has, jnp.clip(tau, 0.0, 1.0), 1.0)
+
+    cx, cy = cross(p0[0], p1[0]), cross(p0[1], p1[1])
+    taus = [jnp.zeros_like(cx), jnp.minimum(cx, cy), jnp.maximum(cx, cy), jnp.ones_like(cx)]
+    pix, wts = [], []
+    for j in range(3):
+        pix.append(_pixel_of(p0 + (0.5 * (taus[j] + taus[j + 1]))[None] * (p1 - p0), width, height))
+        wts.append(taus[j + 1] - taus[j])
+    return jnp.stack(pix), jnp.stack(wts)
+
+
+def _pixel_of(x, width, height):
+    """Row-major pixel id ``(E,)`` of image positions ``x (2, E)`` (clipped to the image)."""
+    px = jnp.clip(jnp.floor(x[0]).astype(jnp.int32), 0, width - 1)
+    py = jnp.clip(jnp.floor(x[1]).astype(jnp.int32), 0, height - 1)
+    return py * width + px
+
+
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad):
+    """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
+    whose derivative with respect to ``scene`` is the edge contribution, and the
+    number of sample pairs with an edge between them.
+
+    ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
+    through image positions ``xy`` (with ``light (M,)``: per ray, that light's
+    contribution alone, or everything at index ``L``), treated as a constant. The
+    jump ``f_minus - f_plus`` is measured by probe rays just on either side of the
+    edge point (``1/256`` of the sample spacing away for visibility edges, 0.03
+    pixel for shadow edges), where the probes see the same as the two samples
+    (else the crossing adds nothing). ``radiance_grad(xy (2, M)) -> (M, 3)``: the
+    same rays shaded as the grid's samples are, differentiable with respect to
+    ``scene`` (the silhouette quadrature of step 6).
+    """
+    n = eo.samples
+    D = eo.depth
+    Gw, Gh = width * n, height * n
+    S = Gw * Gh
+    h = 1.0 / n
+    sg = jax.lax.stop_gradient(scene)
+    kinds = prepare(sg)
+    P, off = build_prims(scene)
+    P_sg = jax.lax.stop_gradient(P)
+    ns = off["ns"]
+
+    def rec_at(x):
+        return records(sg, kinds, off, P_sg, x, width, height, D)
+
+    dt = scene.dtype
+    jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
+    xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
+    R = rec_at(xy)
+    L = R.first.shape[1]
+    a, b, horiz = _pairs(Gw, Gh)
+
+    def okey(g):
+        return object_key(P_sg, ns, g)
+
+    ha, hb = R.hit[:, a], R.hit[:, b]
+    same_r = R.refr[:, a] == R.refr[:, b]
+    # Visibility: the first chain level whose hits differ, after a common prefix.
+    pre = jnp.ones(a.shape, bool)
+    vis_act = jnp.zeros(a.shape, bool)
+    lv = jnp.zeros(a.shape, jnp.int32)
+    for lvl in range(D):
+        dh = ha[lvl] != hb[lvl]
+        new = pre & dh
+        vis_act = vis_act | new
+        lv = jnp.where(new, lvl, lv)
+        pre = pre & ~dh & same_r[lvl]
+    act = [vis_act]
+    # Shadows: per light, the first level (same hit, common prefix) whose shadow
+    # records differ; slots for light k, candidate occluder j (last / first occluder
+    # of either sample's shadow segment), each distinct occluding object once.
+    ls = []
+    for k in range(L):
+        pre = jnp.ones(a.shape, bool)
+        found = jnp.zeros(a.shape, bool)
+        lk = jnp.zeros(a.shape, jnp.int32)
+        for lvl in range(D):
+            eqh = ha[lvl] == hb[lvl]
+            dif = (
+                pre
+                & eqh
+                & (ha[lvl] >= 0)
+                & ~found
+                & ((R.first[lvl, k, a] != R.first[lvl, k, b]) | (R.last[lvl, k, a] != R.last[lvl, k, b]))
+            )
+            lk = jnp.where(dif, lvl, lk)
+            found = found | dif
+            pre = pre & eqh & same_r[lvl]
+        ls.append(lk)
+        recv = okey(at_level(ha, lk))
+        cands = [
+            at_level(R.last[:, k, a], lk),
+            at_level(R.first[:, k, a], lk),
+            at_level(R.last[:, k, b], lk),
+            at_level(R.first[:, k, b], lk),
+        ]
+        keys = [okey(c) for c in cands]
+        for j in range(4):
+            new = found & (cands[j] >= 0) & (keys[j] != recv)
+            for i in range(j):
+                new = new & (keys[j] != keys[i])
+            act.append(new)
+    nslot = 1 + 4 * L
+    act = jnp.stack(act, 1).ravel()  # (npairs * nslot,) pair-major
+    budget = eo.budget if eo.budget is not None else max(4096, S // 4)
+    budget = min(budget, act.shape[0])
+    C = min(CHUNK, budget)
+    nc = -(-budget // C)
+    K = nc * C
+    count = jnp.sum(act)
+    (flat,) = jnp.nonzero(act, size=K, fill_value=0)
+    flat = flat.astype(jnp.int32)
+    live = jnp.arange(K) < count
+    pair = flat // nslot
+    slot = flat % nslot
+    ea, eb = a[pair], b[pair]
+    vis = slot == 0
+    k_ev = jnp.maximum(slot - 1, 0) // 4
+    j_ev = jnp.maximum(slot - 1, 0) % 4
+    if L:
+        level = jnp.where(vis, lv[pair], jnp.stack(ls)[k_ev, pair])
+    else:
+        level = lv[pair]
+    chain, refr = R.hit[:, ea], R.refr[:, ea]
+    A = at_level(chain, level)
+    B = R.hit[level, eb]
+    if L:
+        fa, la = R.first[level, k_ev, ea], R.last[level, k_ev, ea]
+        fb, lb = R.first[level, k_ev, eb], R.last[level, k_ev, eb]
+        occ = jnp.where(j_ev == 0, la, jnp.where(j_ev == 1, fa, jnp.where(j_ev == 2, lb, fb)))
+    else:
+        fa = la = fb = lb = occ = jnp.zeros_like(A)
+    inputs = {
+        "live": live,
+        "vis": vis,
+        "level": level,
+        "chain": chain,
+        "refr": refr,
+        "A": A,
+        "B": B,
+        "occ": occ,
+        "k": k_ev,
+        "fa": fa,
+        "la": la,
+        "fb": fb,
+        "lb": lb,
+        "xa": xy[:, ea],
+        "xb": xy[:, eb],
+        "eh": horiz[pair],
+    }
+
+    def solve(c):
+        """Everything about one chunk of ``C`` events that needs no gradient."""
+        zeros = jnp.zeros_like(c["A"])
+        A, B, xa, xb, eh, vis = c["A"], c["B"], c["xa"], c["xb"], c["eh"], c["vis"]
+
+        def mk(typ, p1, p2, sign):
+            return Events(typ, c["level"], c["chain"], c["refr"], p1, p2, c["k"], sign)
+
+        def cat(*evs):
+            return Events(*(jnp.concatenate(f, -1) for f in zip(*evs)))
+
+        def G(ev, x, feature=False):
+            return edge_value(sg, P_sg, ns, ev, x, width, height, feature)
+
+        # One batched evaluation (one compiled copy of G) classifies every event:
+        # visibility (which edge function separates the two samples?) and shadows
+        # (is the occluder hit by one shadow segment and missed by the other?).
+        ev_d = mk(zeros + DEPTH, A, B, zeros)
+        ev_s = mk(zeros + SHADOW, A, c["occ"], zeros)
+        evs = [mk(zeros + MISS, A, B, zeros), mk(zeros + MISS, B, A, zeros), ev_d, ev_d, ev_s, ev_s]
+        vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), -1)  # pyright: ignore
+        mAb, mBa = vals[0], vals[1]
+        case1 = (A >= 0) & (mAb > 0)
+        case2 = ~case1 & (B >= 0) & (mBa > 0)
+        # Depth crossings: t_A - t_B changes sign between the samples (two surfaces
+        # crossing, or a crease of a convex solid).
+        up = (vals[2] <= 0) & (vals[3] >= 0)
+        down = (vals[2] >= 0) & (vals[3] <= 0)
+        case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
+        typ_v = jnp.where(case1 | case2, MISS, DEPTH)
+        ok_v = case1 | case2 | case3
+        ma, mb = vals[4], vals[5]
+        ok_s = (c["occ"] >= 0) & ((ma <= 0) != (mb <= 0))
+        ev = mk(
+            jnp.where(vis, typ_v, SHADOW),
+            jnp.where(vis, jnp.where(case2, B, A), A),
+            jnp.where(vis, B, c["occ"]),
+            jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)),
+        )
+        sgn = ev.sign.astype(dt)
+        ok = c["live"] & jnp.where(vis, ok_v, ok_s)
+        ev2 = cat(ev, ev)
+        sgn2 = jnp.concatenate([sgn, sgn])
+
+        def g2(x):
+            return sgn2 * G(ev2, x)
+
+        # Bisection on the doubled batch (both copies of each bracket; the second is
+        # differentiated along y below, and below the two copies follow the edge to
+        # either side).
+        xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
+
+        def bisect(_, lohi):
+            lo, hi = lohi
+            mid = 0.5 * (lo + hi)
+            neg = g2(xa2 + mid[None] * (xb2 - xa2)) <= 0  # pyright: ignore
+            return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn2), jnp.ones_like(sgn2)))
+        xs2 = xa2 + (0.5 * (lo + hi))[None] * (xb2 - xa2)
+        tang = jnp.concatenate([jnp.zeros_like(xa).at[0].set(1.0), jnp.zeros_like(xa).at[1].set(1.0)], 1)
+        _, gxy = jax.jvp(g2, (xs2,), (tang,))
+        E = A.shape[0]
+        gx, gy = gxy[:E], gxy[E:]
+        xs = xs2[:, :E]
+        den = jnp.abs(gx) + jnp.abs(gy)
+        ok = ok & (den > 0) & jnp.isfinite(den)
+        ga = jnp.where(eh, gx, gy)  # along the pair
+        gc = jnp.where(eh, gy, gx)  # across
+        # The jump, measured on either side of the edge point. Probes sit 1/256 of the
+        # sample spacing from a visibility edge (camera rays are exact there). The
+        # renderer offsets shadow rays from the surface (by 1e-4 of the scene's scale),
+        # which moves its shadow edges by ~1e-3 pixel; shadow probes keep 0.03 pixel
+        # (at most 0.45 of the spacing) from the edge, on both sides of that edge.
+        frac = jnp.where(vis, 1.0 / 256.0, jnp.maximum(1.0 / 256.0, jnp.minimum(0.45, 0.03 * n)))
+        u = (xb - xa) * frac[None]
+        probes = jnp.concatenate([xs - u, xs + u], 1)
+        # A sphere's silhouette: the radiance beside it is f_s + a sqrt(distance); the
+        # inside probe is extrapolated to the edge with ``a``, fitted from it and two
+        # more rays 1/16 and 1/4 of the spacing inside (phi h: the first inside
+        # sample's distance from the edge; step 6 of the module docstring).
+        sil = vis & (ev.typ == MISS) & (ev.p1 < ns)
+        in_b = case2  # the sphere is on the second sample's side
+        t_s = 0.5 * (lo[:E] + hi[:E])
+        phi = jnp.clip(jnp.where(in_b, 1.0 - t_s, t_s), 1e-6, 1.0)
+        step_in = jnp.where(in_b[None], xb - xa, xa - xb)
+        inner = jnp.concatenate([xs + step_in / 16.0, xs + step_in / 4.0], 1)
+
+        # The piece of edge this crossing stands for: up to the neighbouring rows
+        # (columns) on either side, cut where the edge ends or what lies on either
+        # side of it changes (records at the edge, beside it, differ from the probes').
+        # One loop: step 0 takes the records beside the edge point itself (the
+        # probes') and its feature, step 1 looks a whole row (column) away on either
+        # side, the remaining steps bisect for the end where that failed.
+        along = jnp.stack([eh, ~eh]).astype(dt)
+        across = 1.0 - along
+        tdir = across - V.safe_div(gc, ga)[None] * along  # the edge's direction per unit across
+
+        def dup(x):
+            return jnp.concatenate([x, x], -1)
+
+        along2, tdir2, xs2b, u2, ga2 = (dup(x) for x in (along, tdir, xs, u, ga))
+        sided = jnp.concatenate([-jnp.ones_like(sgn), jnp.ones_like(sgn)]) * h
+
+        def on_edge(x):
+            """Follow the edge from ``x`` along the pair direction (chord-Newton steps
+            in one loop); returns the last point evaluated, whether ``g`` vanishes
+            there, and its feature."""
+
+            def newton(_, st):
+                x, _, _, _ = st
+                gv, f = G(ev2, x, feature=True)
+                gv = sgn2 * gv
+                return x - V.safe_div(gv, ga2)[None] * along2, x, jnp.abs(gv) <= 0.05 * h * jnp.abs(ga2), f
+
+            _, x1, conv, f = jax.lax.fori_loop(
+                0, NEWTON_STEPS + 1, newton, (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32))
+            )
+            return x1, conv, f
+
+        def seen(x, r):
+            """Does the pair of grid samples around ``x`` (a point of the edge on a
+            sample row or column) see the same on either side as the probes there
+            (records ``r``)? If not (it straddles another edge too), that row has no
+            crossing of this edge, and the rows beside it cover its piece."""
+            t = x * n - 0.5  # grid coordinates
+            ca = jnp.floor(jnp.where(along2 > 0, t, jnp.round(t))).astype(jnp.int32)
+            inside = (
+                (ca[0] >= 0)
+                & (ca[1] >= 0)
+                & (ca[0] + along2[0].astype(jnp.int32) < Gw)
+                & (ca[1] + along2[1].astype(jnp.int32) < Gh)
+            )
+            ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
+            ib = jnp.clip(ia + jnp.where(along2[0] > 0, 1, Gw), 0, S - 1)
+            at = jax.tree_util.tree_map(lambda v: v[..., jnp.concatenate([ia, ib])], R)
+            # Compared on what makes this event: the chain prefix, the hit at its
+            # level and, for a shadow edge, its light's occluders there.
+            lv4 = jnp.tile(c["level"], 4)
+            same = jnp.ones(lv4.shape, bool)
+            for q in range(D):
+                same = same & ((q > lv4) | (at.hit[q] == r.hit[q])) & ((q >= lv4) | (at.refr[q] == r.refr[q]))
+            if L:
+                k4, ar = jnp.tile(c["k"], 4), jnp.arange(4 * E)
+                same = same & (
+                    jnp.tile(vis, 4)
+                    | ((at.first[lv4, k4, ar] == r.first[lv4, k4, ar]) & (at.last[lv4, k4, ar] == r.last[lv4, k4, ar]))
+                )
+            return ~inside | (same[: 2 * E] & same[2 * E :])
+
+        def end_step(i, st):
+            lo, hi, full, lost, ref, feat = st
+            mid = jnp.where(i == 0, 0.0, jnp.where(i == 1, hi, 0.5 * (lo + hi)))
+            x, conv, f = on_edge(xs2b + mid[None] * tdir2)
+            r = rec_at(jnp.concatenate([x - u2, x + u2], 1))  # minus side, plus side (each 2E)
+            ref = jax.tree_util.tree_map(lambda new, old: jnp.where(i == 0, new, old), r, ref)
+            feat = jnp.where(i == 0, f, feat)
+            v = (
+                conv
+                & (f == feat)
+                & records_equal(records_slice(r, slice(0, 2 * E)), records_slice(ref, slice(0, 2 * E)))
+                & records_equal(records_slice(r, slice(2 * E, 4 * E)), records_slice(ref, slice(2 * E, 4 * E)))
+            )
+            nb = seen(x, r)
+            full = jnp.where(i == 1, v & nb, full)
+            lost = jnp.where(i == 1, v & ~nb, lost)
+            lo = jnp.where((i > 1) & v, mid, lo)
+            hi = jnp.where((i > 1) & ~v, mid, hi)
+            return lo, hi, full, lost, ref, feat
+
+        ref0 = Records(
+            jnp.zeros((D, 4 * E), jnp.int32),
+            jnp.zeros((D, 4 * E), bool),
+            jnp.zeros((D, L, 4 * E), jnp.int32),
+            jnp.zeros((D, L, 4 * E), jnp.int32),
+            jnp.zeros((D, 4 * E), jnp.int32),
+        )
+        no = jnp.zeros(sided.shape, bool)
+        lo, hi, full, lost, ref, _ = jax.lax.fori_loop(
+            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, no, no, ref0, jnp.zeros(sided.shape, jnp.int32))
+        )
+        r_m, r_p = records_slice(ref, slice(0, E)), records_slice(ref, slice(2 * E, 3 * E))
+        lvl = c["level"]
+        pre_m = pre_p = jnp.ones_like(ok)
+        for q in range(D):
+            before = q < lvl
+            pre_m = pre_m & (~before | ((r_m.hit[q] == c["chain"][q]) & (r_m.refr[q] == c["refr"][q])))
+            pre_p = pre_p & (~before | ((r_p.hit[q] == c["chain"][q]) & (r_p.refr[q] == c["refr"][q])))
+        hm, hp = at_level(r_m.hit, lvl), at_level(r_p.hit, lvl)
+        jump_ok = pre_m & pre_p & (hm == A) & jnp.where(vis, hp == B, hp == A)
+        if L:
+            ar = jnp.arange(E)
+            sh = (
+                (r_m.first[lvl, c["k"], ar] == c["fa"])
+                & (r_m.last[lvl, c["k"], ar] == c["la"])
+                & (r_p.first[lvl, c["k"], ar] == c["fb"])
+                & (r_p.last[lvl, c["k"], ar] == c["lb"])
+            )
+            jump_ok = jump_ok & (vis | sh)
+        # A shadow edge's jump is that of its light's contribution alone; one compiled
+        # trace, mapped over the lights and then everything (index L).
+        # One trace of each ray: the probes with their light (index L: everything), and
+        # without spheres no inner rays.
+        which = jnp.where(vis, L, c["k"])
+        pts = jnp.concatenate([probes, inner], 1) if ns else probes
+        sel = jnp.concatenate([which, which] + ([jnp.full((2 * E,), L, jnp.int32)] if ns else []))
+        fl = radiance_at(pts, sel)
+        fr = fl[: 2 * E]
+        # f = f_s + A sqrt(q) + B q at the inside distances q = 1/256 (the probe), 1/16
+        # and 1/4 of the spacing: A by elimination of f_s and B.
+        q0, q1, q2 = 1.0 / 256.0, 1.0 / 16.0, 1.0 / 4.0
+        f0 = jnp.where(in_b[:, None], fr[E:], fr[:E])
+        f1, f2 = (fl[2 * E : 3 * E], fl[3 * E :]) if ns else (f0, f0)
+        A = ((f1 - f0) * (q2 - q0) - (f2 - f0) * (q1 - q0)) / (
+            (math.sqrt(q1) - math.sqrt(q0)) * (q2 - q0) - (math.sqrt(q2) - math.sqrt(q0)) * (q1 - q0)
+        )
+        A = jnp.where(sil[:, None] & jnp.isfinite(A), A, 0.0)
+        fin = f0 - A * math.sqrt(q0)  # the inside probe extrapolated to the edge
+        fm = jnp.where(in_b[:, None], fr[:E], fin)
+        fp = jnp.where(in_b[:, None], fin, fr[E:])
+        df = jnp.where(jump_ok[:, None], fm - fp, 0.0)
+
+        ext = jnp.where(full, 0.5 * h, jnp.where(lost, h, jnp.abs(0.5 * (lo + hi))))
+        e_m, e_p = ext[:E], ext[E:]
+        pix, wts = _pieces(xs - e_m[None] * tdir, xs + e_p[None] * tdir, width, height)
+        # Rows and columns share each edge by the weight |g_a|^4 / (g_x^4 + g_y^4): each
+        # direction takes the edges it crosses steeply, where one crossing stands for a
+        # piece of edge at most ~1.2 sample spacings long (a crossing of a shallow edge
+        # stands for a long piece, along which the jump may change).
+        m = jnp.maximum(jnp.abs(gx), jnp.abs(gy))
+        a4, c4 = V.safe_div(ga, m) ** 4, V.safe_div(gc, m) ** 4
+        wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
+        coef = -df * (jnp.sign(ga) * wgt * (e_m + e_p))[:, None]
+        coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
+        out = {
+            "typ": ev.typ,
+            "p1": ev.p1,
+            "p2": ev.p2,
+            "sign": ev.sign,
+            "xs": xs,
+            "coef": coef.T,
+            "pix": pix,
+            "wts": wts,
+            "ok": ok,
+        }
+        if ns:
+            # A sphere's silhouette: the first QUAD_SAMPLES inside samples of the row (at
+            # t = k + phi spacings from the edge) are replaced by the integral of the
+            # samples' derivative over [0, QUAD_SAMPLES - 1/2 + phi], by Gauss-Legendre
+            # in u = sqrt(t): the 1/sqrt(t) singularity becomes smooth in u, and what
+            # grows like sqrt(t - t_k) after a terminator's kink piecewise smooth. The
+            # rows' weights and piece lengths are the edge term's; it goes to the inside
+            # sample's pixel (a shift of at most QUAD_SAMPLES samples).
+            T = QUAD_SAMPLES - 0.5 + phi
+            xi, wi = (jnp.asarray(v, dt) for v in np.polynomial.legendre.leggauss(QUAD_NODES))
+            xi, wi = 0.5 * (xi + 1.0), 0.5 * wi
+            tq = T[None] * xi[:, None] ** 2  # (Q, E)
+            wq = 2.0 * T[None] * (xi * wi)[:, None]
+            tk = jnp.arange(QUAD_SAMPLES, dtype=dt)[:, None] + phi[None]
+            ww = jnp.concatenate([wq, -jnp.ones_like(tk)])
+            x0 = jnp.where(in_b[None], xb, xa)  # the first inside sample, exactly on the grid
+            qx = jnp.concatenate(
+                [
+                    xs[:, None, :] + tq[None] * step_in[:, None, :],
+                    x0[:, None, :] + (tk - phi[None])[None] * step_in[:, None, :],
+                ],
+                1,
+            )  # (2, Q+K, E)
+            scale = (V.safe_div(a4, a4 + c4) * (e_m + e_p) * h)[None]
+            qw = jnp.where((ok & sil & jump_ok)[None] & jnp.isfinite(scale), ww * scale, 0.0)
+            out["qx"], out["qw"], out["pin"] = qx, qw, _pixel_of(x0, width, height)
+        return out
+
+    def chunked(x):  # (..., K) -> (nc, ..., C)
+        return jnp.moveaxis(x.reshape(x.shape[:-1] + (nc, C)), -2, 0)
+
+    def solve_or_skip(c):
+        shapes = jax.eval_shape(solve, c)
+        return jax.lax.cond(
+            jnp.any(c["live"]),
+            solve,
+            lambda _: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
+            c,
+        )
+
+    res = jax.lax.map(solve_or_skip, {k: chunked(jax.lax.stop_gradient(v)) for k, v in inputs.items()})
+    res = {k: jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (K,)) for k, v in res.items()}
+    ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
+    # The differentiable part: g at the (fixed) edge point, with the live scene.
+    g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)
+    g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
+    term = res["coef"].T * g[:, None]  # (K, 3)
+    img = jnp.zeros((height * width, 3), term.dtype)
+    for j in range(3):
+        img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])
+    if "qx" in res:
+        # The differentiable rays of the silhouette quadrature, live crossings first, in
+        # chunks of C crossings; a chunk without one is skipped.
+        live_q = jnp.any(res["qw"] != 0, 0)
+        order = jnp.argsort(~live_q, stable=True)
+        Q = res["qw"].shape[0]
+        qx = jnp.moveaxis(res["qx"][:, :, order].reshape(2, Q, nc, C), 2, 0)  # (nc, 2, Q, C)
+        qw = jnp.moveaxis(res["qw"][:, order].reshape(Q, nc, C), 1, 0)  # (nc, Q, C)
+
+        def quad(args):
+            x, w = args
+
+            def run(_):
+                f = radiance_grad(x.reshape(2, -1)).reshape(Q, C, 3)
+                return jnp.sum(w[..., None] * f, 0)
+
+            # Rematerialised in the backward pass: the residuals of every chunk's rays
+            # would otherwise be kept (+50 % of the edge mode's memory).
+            return jax.lax.cond(jnp.any(w != 0), jax.checkpoint(run), lambda _: jnp.zeros((C, 3), dt), None)
+
+        img = img.at[res["pin"][order]].add(jax.lax.map(quad, (qx, qw)).reshape(K, 3))
+    img = eqx.error_if(
+        img,
+        count > budget,
+        f"edge_gradients: more sample pairs straddle an edge than "
+        f"edge_budget={budget}; pass a larger edge_budget to render",
+    )
+    img = img - jax.lax.stop_gradient(img)
+    return img.reshape(height, width, 3), count
