@@ -17,6 +17,7 @@ _LAZY = {
     "RenderOptions": "integrator",
     "render": "integrator",
     "PointLights": "lights",
+    "DirectionalLights": "lights",
     "Materials": "materials",
     "fresnel_dielectric": "materials",
     "refract": "materials",
@@ -29,6 +30,7 @@ _LAZY = {
     "SceneBuilder": "scene",
     "Settings": "scene",
     "Boxes": "shapes",
+    "Disks": "shapes",
     "Mesh": "shapes",
     "Planes": "shapes",
     "Quads": "shapes",
@@ -44,6 +46,7 @@ _LAZY = {
     "SceneError": "scenefile",
     "save_image": "imageio",
     "load_image": "imageio",
+    "enable_compilation_cache": "executables",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

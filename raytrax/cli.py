@@ -540,18 +540,6 @@ def _install_interrupts(hard: bool):
     return lambda: signal.signal(signal.SIGINT, previous)
 
 
-def _enable_compilation_cache():
-    """Use jax's persistent compilation cache (``$JAX_COMPILATION_CACHE_DIR`` or
-    ``~/.cache/raytrax/jax``) so a second run of the same scene skips compiling."""
-    import jax
-
-    if not jax.config.values.get("jax_compilation_cache_dir"):
-        jax.config.update(
-            "jax_compilation_cache_dir", os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax")
-        )
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-
-
 def main(argv: list | None = None) -> int:
     """Entry point of the ``raytrax`` command; returns the exit status.
 
@@ -586,7 +574,9 @@ def _main(argv):
     try:
         args = parser.parse_args(argv)
         if args.command == "render":
-            _enable_compilation_cache()
+            from .executables import enable_compilation_cache
+
+            enable_compilation_cache()
             return _cmd_render(args)
         return _cmd_info(args)
     except SystemExit:  # --help, --version

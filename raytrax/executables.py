@@ -249,3 +249,29 @@ def compiled_render(scene, use_cache: bool = True):
     if path is not None and not hits:
         store_executable(path, compiled)
     return compiled, leaves, None
+
+
+def enable_compilation_cache(directory: str | os.PathLike | None = None, *, min_compile_time: float = 1.0) -> str:
+    """Turn on jax's persistent compilation cache for this process, so that a later
+    process (a notebook kernel restarted, a script run again) loads compiled renders and
+    gradients from disk instead of compiling them again (seconds to minutes each).
+
+    ``directory``: where compiled programs are kept; default
+    ``$JAX_COMPILATION_CACHE_DIR`` if set, else ``~/.cache/raytrax/jax`` (the CLI's
+    cache). ``min_compile_time``: programs that compiled faster than this many seconds
+    are not stored. Returns the directory in use. Call it before the first render::
+
+        import raytrax as rt
+        rt.enable_compilation_cache()
+    """
+    import jax
+
+    if directory is None:
+        directory = jax.config.values.get("jax_compilation_cache_dir") or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if not directory:
+        directory = os.path.join(os.path.expanduser("~"), ".cache", "raytrax", "jax")
+    directory = os.fspath(directory)
+    os.makedirs(directory, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", directory)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time))
+    return directory
