@@ -35,7 +35,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
-from raytrax.integrator import render  # noqa: E402
+from raytrax.renderer import render  # noqa: E402
 
 W, H = 32, 24
 BIG = 0.02

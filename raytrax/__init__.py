@@ -14,8 +14,8 @@ __version__ = "0.1.0"
 # public name -> submodule that defines it
 _LAZY = {
     "Camera": "camera",
-    "RenderOptions": "integrator",
-    "render": "integrator",
+    "RenderOptions": "renderer",
+    "render": "renderer",
     "PointLights": "lights",
     "DirectionalLights": "lights",
     "Materials": "materials",

@@ -226,7 +226,7 @@ def compiled_render(scene, use_cache: bool = True):
             return compiled, leaves, path
         forget(path)  # unreadable or for other arguments
 
-    from .integrator import render
+    from .renderer import render
 
     def fn(leaves):
         return render(eqx.combine(jax.tree_util.tree_unflatten(treedef, leaves), static))

@@ -26,6 +26,14 @@ from .shapes.triangles import tri_hit, tri_soa, tri_t
 
 BLOCK = 32
 EPS_REL = 1e-4  # offset of spawned rays from their surface, relative to 1 + max |coordinate|
+
+
+def offset_scale(p):
+    """How far rays spawned at points ``p (3, n)`` start from their surface (shadow
+    rays, reflected and refracted children): ``EPS_REL (1 + max_i |p_i|)``, ``(n,)``."""
+    return EPS_REL * (1.0 + jnp.maximum(jnp.maximum(jnp.abs(p[0]), jnp.abs(p[1])), jnp.abs(p[2])))
+
+
 INF = float("inf")
 
 

@@ -23,6 +23,9 @@ reflectivity`` (RGB), ``F`` the unpolarised Fresnel reflectance:
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -131,3 +134,164 @@ def material_rows(mats, mat, names):
             out[nm] = rows[j : j + c.shape[1]]
             j += c.shape[1]
     return out
+
+
+# ----------------------------------------------------------------------------
+# A surface hit seen from the incoming ray, and the dielectric interface there.
+# ----------------------------------------------------------------------------
+
+
+class Facing(NamedTuple):
+    """The geometric normal turned towards the incoming ray: ``n_s (3, n)``,
+    ``front (n,)`` (the ray arrives on the side the normal points to) and ``cos_i (n,)``."""
+
+    n_s: jax.Array
+    front: jax.Array
+    cos_i: jax.Array
+
+
+def facing(d, normal) -> Facing:
+    """:class:`Facing` of rays ``d (3, n)`` at surfaces with outward ``normal (3, n)``."""
+    cos_d = V.dot(d, normal)
+    front = cos_d < 0
+    return Facing(V.vsel(front, normal, -normal), front, jnp.abs(cos_d))
+
+
+class Interface(NamedTuple):
+    """A smooth dielectric interface crossed from the ray's side: relative index
+    ``eta (n,)`` (incident over transmitted), Fresnel reflectance ``F``, ``cos_t`` and
+    total internal reflection ``tir``."""
+
+    eta: jax.Array
+    F: jax.Array
+    cos_t: jax.Array
+    tir: jax.Array
+
+
+def interface(f: Facing, ior) -> Interface:
+    """The interface of a material of index ``ior (n,)`` in vacuum (index 1), entered
+    where ``f.front`` and left otherwise."""
+    eta = jnp.where(f.front, V.safe_div(1.0, ior), ior)
+    F, cos_t, tir = fresnel_dielectric(f.cos_i, eta)
+    return Interface(eta, F, cos_t, tir)
+
+
+def refracts_dominantly(transparency, reflectivity):
+    """Which child a specular chain follows at a hit (used by the boundary terms): the
+    refracted one where the material is at least as transparent as it is reflective
+    (``transparency > 0`` and ``transparency >= reflectivity``), else the reflected one."""
+    return (transparency > 0) & (transparency >= reflectivity)
+
+
+# ----------------------------------------------------------------------------
+# Shading models: how a hit's material turns light into outgoing radiance.
+# ----------------------------------------------------------------------------
+
+
+class ShadingModel:
+    """One shading model (``classic`` or ``physical``, see the module docstring).
+
+    The integrator calls, per shading point: :meth:`shadow` on each light's occluder
+    counts, :meth:`add_light` once per light into an accumulator started at zero,
+    :meth:`finish`, :meth:`ambient`, and :meth:`specular_weights` for the reflected and
+    refracted children. ``fields``: the material table's columns it reads beyond
+    ``color``, ``transparency``, ``reflectivity`` and ``ior``.
+    """
+
+    name: str = ""
+    fields: tuple = ()
+
+    def shadow(self, counts):
+        """The shadow record of a light from occluder counts ``(n, M)``."""
+        raise NotImplementedError
+
+    def no_shadow(self, n: int, M: int, dtype):
+        raise NotImplementedError
+
+    def add_light(self, acc, rows, color, transparency_table, sh, strength, falloff, cosl, ldir, n_s, d, lit):
+        raise NotImplementedError
+
+    def finish(self, acc, rows, color):
+        return acc
+
+    def ambient(self, local, amb, rows, color):
+        return local
+
+    def specular_weights(self, rows, itf: Interface):
+        """Weights ``(3, n)`` of the reflected and the refracted child."""
+        raise NotImplementedError
+
+
+class Classic(ShadingModel):
+    """The seed raytracer's model: Phong terms per light with no falloff, shadows that
+    let light through transparent occluders, ambient light, mirror and Snell weights."""
+
+    name = "classic"
+    fields = ("diffuse", "specular", "shininess", "ambient")
+
+    def shadow(self, counts):
+        return counts
+
+    def no_shadow(self, n, M, dtype):
+        return jnp.zeros((n, M), dtype)
+
+    def add_light(self, acc, rows, color, transparency_table, sh, strength, falloff, cosl, ldir, n_s, d, lit):
+        T = rows["transparency"]
+        trans = jnp.ones_like(T)
+        for m in range(sh.shape[1]):  # shadow transmission: each crossing multiplies by the occluder's transparency
+            has = sh[:, m] > 0
+            trans = trans * jnp.where(
+                has, jnp.where(has, transparency_table[m], 1.0) ** jnp.where(has, sh[:, m], 1.0), 1.0
+            )
+        diff = rows["diffuse"] * (1.0 - T) * jnp.maximum(cosl, 0.0)
+        rv = V.dot(V.reflect(-ldir, n_s), -d)
+        spec = jnp.where(lit, rows["specular"] * V.safe_pow(rv, rows["shininess"]), 0.0)
+        s = trans * jnp.where(lit, 1.0, 0.0)
+        return acc + strength[:, None] * s[None] * (diff[None] * color + spec[None])
+
+    def ambient(self, local, amb, rows, color):
+        return local + amb * (rows["ambient"] * (1.0 - rows["transparency"]))[None] * color
+
+    def specular_weights(self, rows, itf):
+        T, R = rows["transparency"], rows["reflectivity"]
+        tirf = itf.tir.astype(T.dtype)
+        wr = R + (T * tirf)[None]
+        wt = jnp.broadcast_to((T * (1.0 - tirf))[None], wr.shape)
+        return wr, wt
+
+
+class Physical(ShadingModel):
+    """Radiometric: Lambertian ``albedo / pi`` times the irradiance of unshadowed
+    lights, ideal mirrors, smooth dielectrics with exact Fresnel (``eta^2`` radiance
+    scaling on refraction)."""
+
+    name = "physical"
+    fields = ()
+
+    def shadow(self, counts):
+        blocked = counts[:, 0] != 0
+        for m in range(1, counts.shape[1]):
+            blocked = blocked | (counts[:, m] != 0)
+        return blocked
+
+    def no_shadow(self, n, M, dtype):
+        return jnp.zeros((n,), bool)
+
+    def add_light(self, acc, rows, color, transparency_table, sh, strength, falloff, cosl, ldir, n_s, d, lit):
+        vis = jnp.logical_not(sh) & lit
+        g = jnp.where(vis, jnp.maximum(cosl, 0.0) * falloff, 0.0)
+        return acc + strength[:, None] * g[None]
+
+    def finish(self, acc, rows, color):
+        T, R = rows["transparency"], rows["reflectivity"]
+        return ((1.0 - T)[None] * (1.0 - R) * color * (1.0 / math.pi)) * acc
+
+    def specular_weights(self, rows, itf):
+        T, R = rows["transparency"], rows["reflectivity"]
+        wr = (T * itf.F)[None] + (1.0 - T)[None] * R
+        wt = jnp.broadcast_to((T * (1.0 - itf.F) * itf.eta * itf.eta)[None], wr.shape)
+        return wr, wt
+
+
+#: The shading models by name (a scene's ``shading``).
+SHADING_MODELS: dict[str, ShadingModel] = {m.name: m for m in (Classic(), Physical())}

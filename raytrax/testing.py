@@ -66,7 +66,7 @@ def render64(scene, **render_kwargs) -> jax.Array:
     Keywords are those of :func:`raytrax.render`. Returns an ``(H, W, 3)``
     float64 image; differentiable like ``render``.
     """
-    from .integrator import render
+    from .renderer import render
 
     _require_x64("raytrax.testing.render64")
     return render(scene.astype(jnp.float64), **render_kwargs)
@@ -101,8 +101,8 @@ def image_loss(scene, target, *, weights=None, **render_kwargs) -> Callable[[Map
     The returned function takes a dict of named parameters (all of them, or a
     subset) and returns a float64 scalar.
     """
-    from .integrator import render
     from .params import with_parameters
+    from .renderer import render
 
     _require_x64("raytrax.testing.image_loss")
     scene64 = scene.astype(jnp.float64)

@@ -210,7 +210,8 @@ def test_probe_radiance_per_light_matches_renders_with_one_light_on():
     contribution or everything) against renders of the same scene with only that
     light on and no ambient or background (classic and physical shading, a mirror
     so that the light also arrives along reflected paths)."""
-    from raytrax.integrator import RenderOptions, _radiance_at
+    from raytrax.renderer import RenderOptions
+    from raytrax.renderer.edge_mode import radiance_at
 
     for shading in ("classic", "physical"):
         b = rt.SceneBuilder(
@@ -228,7 +229,7 @@ def test_probe_radiance_per_light_matches_renders_with_one_light_on():
         xy = jnp.asarray(np.stack([jj.ravel(), ii.ravel()]))  # pixel centres, row-major
         opts = RenderOptions(settings=s.settings)
         sel = jnp.asarray([0, 1, 2, 2, 1, 0, 0, 1, 2, 1, 2, 0], jnp.int32)  # 2: everything
-        got = np.asarray(_radiance_at(s, opts, xy, 1, sel))
+        got = np.asarray(radiance_at(s, opts, xy, 1, sel))
         for k in range(3):
             q = {"render.background": jnp.zeros(3), "render.ambient": jnp.zeros(3)} if k < 2 else {}
             if k < 2:

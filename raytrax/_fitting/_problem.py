@@ -7,7 +7,6 @@ fits of the same structure (new values, new target).
 from __future__ import annotations
 
 import re
-
 from collections.abc import Callable
 
 import equinox as eqx
@@ -15,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrator import render
+from ..renderer import render
 from ..scene import Scene
 
 

@@ -12,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
-from ..intersect import EPS_REL
+from ..intersect import offset_scale
 from ..lights import LIGHTS
-from ..materials import fresnel_dielectric, refract
+from ..materials import facing, interface, refract
 from ..shapes import KINDS
 
 MAX_FACES = 6  # faces of the largest convex solid (a box)
@@ -204,17 +204,13 @@ def specular_step(P: Prims, ns, ids, want_t, o, d):
     t = first_t(P, ns, ids, o, d)
     p = o + t[None] * d
     n = V.vsel(is_s, V.normalize(p - P.c[:, si]), P.pn[:, pi])
-    cos_d = V.dot(d, n)
-    front = cos_d < 0
-    n_s = V.vsel(front, n, -n)
-    cos_i = jnp.abs(cos_d)
-    ior = P.ior[P.mat[jnp.clip(ids, 0, P.mat.shape[0] - 1)]]
-    eta = jnp.where(front, V.safe_div(1.0, ior), ior)
-    _, cos_t, tir = fresnel_dielectric(cos_i, eta)
-    refr = want_t & ~tir
-    eps = EPS_REL * (1.0 + jnp.max(jnp.abs(p), 0))
+    face = facing(d, n)
+    n_s = face.n_s
+    itf = interface(face, P.ior[P.mat[jnp.clip(ids, 0, P.mat.shape[0] - 1)]])
+    refr = want_t & ~itf.tir
+    eps = offset_scale(p)
     o2 = V.vsel(refr, p - eps[None] * n_s, p + eps[None] * n_s)
-    d2 = V.vsel(refr, refract(d, n_s, eta, cos_t), V.reflect(d, n_s))
+    d2 = V.vsel(refr, refract(d, n_s, itf.eta, itf.cos_t), V.reflect(d, n_s))
     return o2, d2, refr
 
 

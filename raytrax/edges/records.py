@@ -12,7 +12,8 @@ import jax.numpy as jnp
 from .. import textures as tx
 from .. import vec as V
 from ..camera import rays_through
-from ..intersect import closest_kind, no_hit
+from ..intersect import closest_kind, no_hit, offset_scale
+from ..materials import refracts_dominantly
 from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
 
@@ -61,7 +62,7 @@ def occluders(scene, kinds, off, P: Prims, p, hit):
     """First and last occluder ``(L, M)`` on the segments from points ``p (3, M)``
     to each light (-1: none, or ``~hit``); a directional light's segment runs to
     beyond every finite primitive."""
-    eps = 1e-4 * (1.0 + jnp.max(jnp.abs(p), 0))
+    eps = offset_scale(p)
 
     def one(args):
         Lpos, isd = args
@@ -115,7 +116,7 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
         mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]
         T, R = P.trans[mat], P.refl[mat]
         cont = hit & ((T > 0) | (R > 0))
-        o2, d2, refr = specular_step(P, ns, gid, (T > 0) & (T >= R), o, d)
+        o2, d2, refr = specular_step(P, ns, gid, refracts_dominantly(T, R), o, d)
         cell = hit_cell(scene, kinds, off, gid, o, d, jnp.where(hit, t, 0.0), mat)
         return (o2, d2, cont), (gid, cont & refr, first, last, cell)
 

@@ -1,0 +1,82 @@
+"""The public :func:`render`."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+
+from ..edges import EdgeOptions
+from ..scene import Scene
+from .edge_mode import render_edges_jit
+from .options import RAYS_PER_TILE, RenderOptions
+from .tiles import render_image_jit
+
+
+def render(
+    scene: Scene,
+    *,
+    width: int | None = None,
+    height: int | None = None,
+    spp: int | None = None,
+    max_depth: int | None = None,
+    key=None,
+    filter_textures: bool | None = None,
+    branches: int | None = None,
+    tile_rays: int = RAYS_PER_TILE,
+    devices=None,
+    edge_gradients: bool = False,
+    edge_budget: int | None = None,
+) -> jax.Array:
+    """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
+
+    Keywords override the scene's own render settings (same names as the scene
+    file's ``[render]`` keys). ``key`` (a PRNG key) jitters each sample inside
+    its sub-pixel stratum; without it the ``n x n`` grid is regular. The image
+    has the scene's float dtype (float32, or float64 for a float64 scene with
+    x64 enabled). Row 0 is the top row.
+
+    ``devices``: ``None`` renders on the default device; ``"all"`` or an
+    integer shards the image tiles over that many of ``jax.devices()`` with
+    ``jax.shard_map`` (same image, gradients summed over devices).
+    ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
+
+    ``edge_gradients=True`` adds the boundary terms of the derivative (moving
+    silhouettes, surface crossings and hard-shadow edges; see
+    :mod:`raytrax.edges` and ``docs/gradients.md``). The image is the same (it
+    is rendered as the ``sqrt(spp) x sqrt(spp)`` grid of samples per pixel, and
+    edges are found between neighbouring samples); its gradient converges to
+    the derivative of the pixel-integrated image as ``spp`` grows. Needs
+    ``key=None``. ``edge_budget``: the most sample pairs with an edge between
+    them (default: a quarter of the samples, at least 4096; exceeding it is a runtime error).
+
+    Compiled once per scene structure and option set (``eqx.filter_jit``);
+    differentiable with respect to every float leaf of ``scene``.
+    """
+    over = {
+        k: v
+        for k, v in dict(
+            width=width, height=height, spp=spp, max_depth=max_depth, filter_textures=filter_textures, branches=branches
+        ).items()
+        if v is not None
+    }
+    st = dataclasses.replace(scene.settings, **over) if over else scene.settings
+    if devices is None:
+        n_dev = 1
+    elif devices == "all":
+        n_dev = jax.device_count()
+    elif isinstance(devices, int) and 1 <= devices <= jax.device_count():
+        n_dev = devices
+    else:
+        raise ValueError(f"devices: expected None, 'all' or an integer in [1, {jax.device_count()}], got {devices!r}")
+    opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev)
+    if edge_gradients:
+        if key is not None:
+            raise ValueError(
+                "edge_gradients: edges are found on the regular n x n sample grid; pass key=None (no jitter)"
+            )
+        if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
+            raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
+        return render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1))
+    return render_image_jit(scene, opts, key)

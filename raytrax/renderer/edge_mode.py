@@ -1,0 +1,88 @@
+"""Edge mode (``render(..., edge_gradients=True)``): the image from its grid of samples
+plus the boundary term of :mod:`raytrax.edges`."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from ..camera import rays_through
+from ..edges import edge_term
+from ..intersect import prepare
+from ..scene import Scene
+from .options import RenderOptions
+from .tiles import render_image
+from .whitted import trace
+
+
+def map_positions(fn, xy, chunk: int, sel=None):
+    """``fn(xy_chunk (2, c), sel_chunk (c,) or None) -> (c, k)`` over image positions
+    ``xy (2, M)`` (and per-position ``sel (M,)``) in chunks of at most ``chunk``
+    (``lax.map``; the last chunk is padded); returns ``(M, k)``."""
+    M = xy.shape[1]
+    c = max(1, min(M, chunk))
+    nc = math.ceil(M / c)
+    xyc = jnp.pad(xy, ((0, 0), (0, nc * c - M)), mode="edge").reshape(2, nc, c).transpose(1, 0, 2)
+    if sel is None:
+        out = jax.lax.map(lambda x: fn(x, None), xyc)
+    else:
+        out = jax.lax.map(lambda a: fn(*a), (xyc, jnp.pad(sel, (0, nc * c - M), mode="edge").reshape(nc, c)))
+    return out.reshape((nc * c,) + out.shape[2:])[:M]
+
+
+def sample_spread(scene: Scene, opts: RenderOptions, n: int):
+    """Cone spread of one sample of the ``n x n`` grid (see ``primary_rays``)."""
+    return 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / opts.settings.height / n
+
+
+def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False):
+    """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
+    gradient unless ``grad``; the jump across an edge). ``light`` (an index or ``(M,)``
+    indices, may be traced): where below the number of lights, only what that light
+    contributes, through every specular path (no ambient, no background, the other
+    lights off); at or above it, everything. One trace of each ray whatever the indices."""
+    st = opts.settings
+    if not grad:
+        scene = jax.lax.stop_gradient(scene)
+    sel = None if light is None else jnp.broadcast_to(jnp.asarray(light, jnp.int32), xy.shape[1:])
+    spread = sample_spread(scene, opts, n)
+    kinds = prepare(scene)
+
+    def one(x, s):
+        o, d = rays_through(scene.camera, x, st.width, st.height)
+        return trace(scene, kinds, o, d, spread, opts, s).T
+
+    return map_positions(one, xy, opts.tile_rays // st.branches, sel)
+
+
+def render_edges(scene: Scene, opts: RenderOptions, eo):
+    """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
+    term of :mod:`raytrax.edges` (zero in value) found on the same samples."""
+    st = opts.settings
+    n = eo.samples
+    W, H = st.width, st.height
+    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=W * n, height=H * n, spp=1), jitter=False)
+    samples = render_image(scene, grid, None)  # (H n, W n, 3), differentiable
+    img = samples.reshape(H, n, W, n, 3).mean((1, 3))
+    # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
+    # where the pattern changes beside the edge: the derivative the estimate converges
+    # to is that of the image as the samples grow, where the filter width goes to 0.
+    hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
+    # The quadrature's rays are shaded as the grid's samples are: ``opts`` (edge mode
+    # has no jitter: ``render`` refuses a key with it).
+    edge, _ = edge_term(
+        scene,
+        W,
+        H,
+        eo,
+        lambda xy, light=None: radiance_at(scene, hard, xy, n, light),
+        lambda xy: radiance_at(scene, opts, xy, n, grad=True),
+    )
+    return img + edge
+
+
+render_edges_jit = eqx.filter_jit(render_edges)
