@@ -11,21 +11,29 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._problem import _Problem
+from ._uncertainty import _jacobian
 
 _TAGS = frozenset()
 _JACFWD_MAX = 32  # fitted numbers up to which the start check resolves single components
 
 
-@eqx.filter_jit
 def _effect(problem: _Problem, z, probe):
     """For each fitted name, the sum over the (weighted) image of
-    ``|d image / d z|``: per component (forward-mode Jacobian) when there are
-    few, else along one random direction per name. Zero means no effect."""
+    ``|d image / d z|``: per component (forward-mode Jacobian, the compiled
+    function the standard errors use too) when there are few, else along one
+    random direction per name. Zero means no effect."""
     w = problem.weights
     size = sum(int(np.prod(v.shape)) for v in z.values())
     if size <= _JACFWD_MAX:
-        J = jax.jacfwd(problem.image)(z)
+        _, J = _jacobian(problem, z)
         return {n: jnp.sum(jnp.abs(j) * w.reshape(w.shape + (1,) * (j.ndim - 3)), axis=(0, 1, 2)) for n, j in J.items()}
+    return _effect_along(problem, z, probe)
+
+
+@eqx.filter_jit
+def _effect_along(problem: _Problem, z, probe):
+    """:func:`_effect` for many fitted numbers: along one random direction per name."""
+    w = problem.weights
     names = list(z)
 
     def along(i):

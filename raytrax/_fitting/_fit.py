@@ -26,8 +26,10 @@ from ._compiled import _effect, _init, _step
 from ._problem import _Frozen, _is_float_array, _Problem
 from ._report import _fmt, _Reporter
 from ._result import FitResult
+from ._robust import _blurred, _resolve_search, _start_points
 from ._setup import _render_opts, _resolve_bounds, _resolve_params, _target_and_weights, _to_unconstrained
 from ._solvers import _make_solver
+from ._uncertainty import _uncertainty
 
 
 def fit(
@@ -51,6 +53,11 @@ def fit(
     callback: Callable | None = None,
     check: bool = True,
     throw: bool = True,
+    starts: int | None = None,
+    levels: Sequence[float] | None = None,
+    start_steps: int | None = None,
+    noise: float | None = None,
+    uncertainty: bool = True,
 ) -> FitResult:
     """Fit parameters of ``scene`` so that its render matches ``target``.
 
@@ -107,6 +114,10 @@ def fit(
     opt, least_squares = _make_solver(solver, rtol, atol, learning_rate)
     loss_fn = _check_loss(loss, regularizer, least_squares)
     fitted = _resolve_fitted(scene, params, bounds, default_bounds)
+    n_starts, levels = _resolve_search(fitted, bounds, starts, levels)
+    start_steps = _check_start_steps(start_steps, max_steps)
+    if noise is not None and not (math.isfinite(float(noise)) and float(noise) > 0):
+        raise ValueError(f"noise: expected a positive standard deviation, got {noise!r}")
     problem, z0 = _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer)
 
     # -- start: loss, finiteness, effect of each parameter ----------------
@@ -114,26 +125,37 @@ def fit(
     if check:
         _check_effect(problem, z0, weighted=weights is not None)
     start_values = _values_at(problem, z0)
+    search = None
+    if n_starts > 1 or len(levels) > 1:
+        # -- the robust search: starts on the first level, the best refined on the next
+        search = _search(problem, fitted, z0, opt, least_squares, n_starts, levels, start_steps, patience, progress)
+        z0 = search.z
+        loss0 = _start_loss(problem, z0)
     log = _Log(_Reporter(progress, max_steps, problem.names), callback)
-    log.record(0, loss0, start_values)
+    values0 = _values_at(problem, z0)
+    log.record(0, loss0, values0)
     if loss0 == 0.0:
         msg = "the start already reproduces the target exactly (loss 0)"
         log.reporter.close(msg)
         return _assemble_result(
-            problem, z0, start_values, start_values, log, 0, True, optx.RESULTS.successful, msg, opt, t_start
-        )
-    problem = _normalise(problem, loss0, least_squares)
+            problem, z0, values0, start_values, log, 0, True, optx.RESULTS.successful, msg, opt, t_start,
+            search=search, extra=_extra(problem, z0, uncertainty, noise),
+        )  # fmt: skip
+    problem_n = _normalise(problem, loss0, least_squares)
 
     # -- iterate ------------------------------------------------------------
-    run = _run_solver(problem, opt, z0, least_squares, loss0, start_values, log, max_steps, patience)
+    run = _run_solver(problem_n, opt, z0, least_squares, loss0, values0, log, max_steps, patience)
     msg, result = _ending(run, max_steps, patience, log.values[-1])
     if run.nonfinite and throw:
         log.reporter.close("stopped: non-finite values")
         raise FloatingPointError(msg)
+    if search is not None:
+        msg = f"{search.summary}; then {msg}"
     _report_end(log.reporter, run, msg, loss0)
     return _assemble_result(
-        problem, run.best_z, run.best_values, start_values, log, run.steps, run.converged, result, msg, opt, t_start
-    )
+        problem, run.best_z, run.best_values, start_values, log, run.steps, run.converged, result, msg, opt, t_start,
+        search=search, extra=_extra(problem, run.best_z, uncertainty, noise),
+    )  # fmt: skip
 
 
 # ---------------------------------------------------------------------------
@@ -411,8 +433,11 @@ def _report_end(reporter, run, msg, loss0):
         )
 
 
-def _assemble_result(problem, z, values, start_values, log, steps, converged, result, msg, opt, t_start):
+def _assemble_result(
+    problem, z, values, start_values, log, steps, converged, result, msg, opt, t_start, search=None, extra=None
+):
     """The :class:`FitResult` for the point ``z`` (its parameter ``values``)."""
+    unc = extra
     return FitResult(
         scene=problem.scene_at(z),
         params=values,
@@ -425,4 +450,117 @@ def _assemble_result(problem, z, values, start_values, log, steps, converged, re
         message=msg,
         solver=opt,
         seconds=time.perf_counter() - t_start,
+        stderr=None if unc is None else unc.stderr,
+        covariance=None if unc is None else unc.covariance,
+        covariance_labels=() if unc is None else unc.labels,
+        noise=None if unc is None else unc.noise,
+        undetermined=[] if unc is None else unc.undetermined,
+        starts=[] if search is None else search.starts,
+        levels=[] if search is None else search.levels,
     )
+
+
+# ---------------------------------------------------------------------------
+# The robust search and the uncertainty
+# ---------------------------------------------------------------------------
+def _check_start_steps(start_steps, max_steps):
+    """-> the budget of each start's local fit (default ``min(max_steps, 15)``)."""
+    if start_steps is None:
+        return min(max_steps, 15)
+    if isinstance(start_steps, bool) or not isinstance(start_steps, int) or start_steps < 1:
+        raise ValueError(f"start_steps: expected a positive integer, got {start_steps!r}")
+    return start_steps
+
+
+@dataclasses.dataclass
+class _Search:
+    """What the robust search found: the point the final fit starts from, and records."""
+
+    z: dict
+    starts: list  # per start: dict(start=, params=, loss=, steps=, converged=)
+    levels: list  # per level before the last: dict(level=, start=, params=, loss=, steps=)
+    summary: str
+
+
+def _local(problem, z, opt, least_squares, max_steps, patience):
+    """A quiet local fit of ``problem`` from ``z``: -> (run, loss at the start) or
+    ``(None, inf)`` when the start's loss is not finite. Losses are ``problem``'s own
+    (blurred on a blurred level)."""
+    try:
+        loss0 = _start_loss(problem, z)
+    except FloatingPointError:
+        return None, math.inf
+    log = _Log(_Reporter(False, max_steps, problem.names), None)
+    values0 = _values_at(problem, z)
+    log.record(0, loss0, values0)
+    if loss0 == 0.0:
+        return _Run(0, True, False, False, False, optx.RESULTS.successful, 0.0, z, values0), loss0
+    run = _run_solver(
+        _normalise(problem, loss0, least_squares), opt, z, least_squares, loss0, values0, log, max_steps, patience
+    )
+    return run, loss0
+
+
+def _search(problem, fitted, z_given, opt, least_squares, n_starts, levels, start_steps, patience, progress):
+    """Local fits of ``start_steps`` steps from ``n_starts`` points (the given start and
+    points spread over the bounds) on the first blur level; the lowest loss is kept
+    and refined on each later level but the last (which :func:`fit` runs)."""
+    say = print if progress else (lambda *a, **k: None)
+    sdt = z_given[problem.names[0]].dtype
+    points = _start_points(fitted, n_starts)
+    zs = [z_given] + [
+        {
+            n: jnp.asarray(_to_unconstrained(pt[n], fitted.lo[n], fitted.hi[n], k), sdt)
+            for n, k in zip(problem.names, fitted.maps)
+        }
+        for pt in points[1:]
+    ]
+    first = _blurred(problem, levels[0])
+    records, ends = [], []
+    for i, z in enumerate(zs):
+        run, l0 = _local(first, z, opt, least_squares, start_steps, patience)
+        start = _values_at(problem, z)
+        if run is None:
+            records.append(dict(start=start, params=start, loss=math.inf, steps=0, converged=False))
+            ends.append(z)
+        else:
+            records.append(
+                dict(start=start, params=run.best_values, loss=run.best_loss, steps=run.steps, converged=run.converged)
+            )
+            ends.append(run.best_z)
+        r = records[-1]
+        vals = "  ".join(f"{n}={_fmt(r['start'][n])}->{_fmt(r['params'][n])}" for n in problem.names)
+        say(f"start {i:2d}  level {levels[0]:g}  {r['steps']:3d} steps  loss {r['loss']:.4g}  {vals}", flush=True)
+    best = int(np.argmin([r["loss"] for r in records]))
+    z = ends[best]
+    level_records = []
+    for lv in levels[1:-1]:  # the last level is fit's final run
+        run, l0 = _local(_blurred(problem, lv), z, opt, least_squares, start_steps, patience)
+        if run is None:
+            break
+        level_records.append(
+            dict(level=lv, start=_values_at(problem, z), params=run.best_values, loss=run.best_loss, steps=run.steps)
+        )
+        say(f"level {lv:g}  {run.steps:3d} steps  loss {l0:.4g} -> {run.best_loss:.4g}", flush=True)
+        z = run.best_z
+    summary = f"best of {n_starts} start{'s' if n_starts > 1 else ''} (start {best}"
+    summary += f", on images blurred by {levels[0]:g} x width)" if levels[0] > 0 else ")"
+    return _Search(z, records, level_records, summary)
+
+
+def _extra(problem, z, uncertainty, noise):
+    """The standard errors at ``z`` (``None`` when not asked for, for a custom loss or
+    a regulariser, or too many fitted numbers); warns about undetermined directions."""
+    if not uncertainty or problem.loss_fn is not None or problem.reg_fn is not None:
+        return None
+    unc = _uncertainty(problem, z, noise)
+    if unc is not None and unc.undetermined:
+        groups = "; ".join(" and ".join(g) for g in unc.undetermined)
+        warnings.warn(
+            f"fit: the image does not determine every direction of the parameters (J^T J is near-singular): "
+            f"{groups} trade off against each other (or have no effect), so their standard errors are inf; "
+            "fix one of them, or add a view that separates them",
+            RuntimeWarning,
+            stacklevel=3,  # fit's caller
+        )
+    return unc
