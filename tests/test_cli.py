@@ -232,7 +232,7 @@ def test_interrupt_before_the_rename_keeps_the_old_output(tmp_path, monkeypatch,
         cli._INT.event.set()
         return np.full((12, 16, 3), 0.5, np.float32)
 
-    monkeypatch.setattr(cli, "_enable_compilation_cache", lambda: None)
+    monkeypatch.setattr("raytrax.executables.enable_compilation_cache", lambda *a, **k: None)
     monkeypatch.setattr(executables, "compiled_render", lambda scene, use_cache=True: (interrupted_render, [], None))
     code, out, err = main_err(capsys, ["render", TINY, "-o", str(target), *SMALL])
     assert code == 130 and out == ""
@@ -412,7 +412,7 @@ def test_cached_executable_that_fails_to_run_is_recompiled(tmp_path, monkeypatch
         calls.append(use_cache)
         return (bad, [], str(entry)) if use_cache else (good, [], None)
 
-    monkeypatch.setattr(cli, "_enable_compilation_cache", lambda: None)
+    monkeypatch.setattr("raytrax.executables.enable_compilation_cache", lambda *a, **k: None)
     monkeypatch.setattr(executables, "compiled_render", fake)
     code, out, err = main_err(capsys, ["render", TINY, "-o", str(tmp_path / "out.png"), "-q", *SMALL])
     assert code == 0 and err == "", err
