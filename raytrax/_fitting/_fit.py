@@ -136,6 +136,8 @@ def fit(
     log.record(0, loss0, values0)
     if loss0 == 0.0:
         msg = "the start already reproduces the target exactly (loss 0)"
+        if search is not None:
+            msg = f"{search.summary}; then {msg}"
         log.reporter.close(msg)
         return _assemble_result(
             problem, z0, values0, start_values, log, 0, True, optx.RESULTS.successful, msg, opt, t_start,

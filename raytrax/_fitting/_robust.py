@@ -151,6 +151,11 @@ def _resolve_search(fitted, bounds, starts, levels):
         starts = DEFAULT_STARTS if robust else 1
     if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
         raise ValueError(f"starts: expected a positive integer, got {starts!r}")
+    if starts > 1 and "both" not in fitted.maps:
+        raise ValueError(
+            "starts: several starts are spread over the bounds, but no fitted parameter has both a "
+            "lower and an upper bound; pass bounds={name: (lo, hi)}"
+        )
     if levels is None:
         levels = DEFAULT_LEVELS if robust else (0.0,)
     try:
