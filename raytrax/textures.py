@@ -17,6 +17,13 @@ With filtering on, each square wave is replaced by its exact box-filtered
 average over the footprint width ``w`` (in pattern units), so edges are
 anti-aliased and the texture has a non-zero derivative with respect to
 anything that moves ``(u, v)`` (geometry, camera, refractive index).
+
+The footprint is anisotropic (:func:`footprint_widths`): a ray cone meeting a
+surface at a grazing angle covers a long thin ellipse, stretched along the view
+direction, and the box takes that ellipse's extent along ``u`` and along ``v``
+(through ray differentials of the hit, :func:`hit_with_uv_shifts`), so a far
+checkered floor fades to its mean colour instead of aliasing while the pattern
+stays sharp across the view direction.
 """
 
 from __future__ import annotations
@@ -24,9 +31,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import vec as V
 from .materials import material_rows
 from .vec import take_rows
 
@@ -190,7 +199,11 @@ def pattern_cell(mats, mat, uv):
     return pattern_fraction(mats, k, rows, uv, jnp.zeros_like(uv), False).astype(jnp.int32)
 
 
-def surface_color(mats, mat, uv, rate, width, filtered, rows=None):
+def surface_color(mats, mat, uv, wuv, filtered, rows=None):
+    """Colour ``(3, n)`` of hits on materials ``mat (n,)`` at ``uv (2, n)``: the material
+    colour, or its checker or stripes box-filtered over the footprint widths ``wuv
+    (2, n)`` in uv units (:func:`footprint_widths`; unused unless ``filtered``), or its
+    image texture (bilinear, tinted by the colour)."""
     kinds = mats.kinds_present
     if rows is None:
         rows = material_rows(mats, mat, ("color", "tex_scale", "tex_color2", "tex_direction") if kinds else ("color",))
@@ -198,7 +211,7 @@ def surface_color(mats, mat, uv, rate, width, filtered, rows=None):
     if not kinds:
         return base
     k = take_rows(mats.tex_kind, mat)
-    frac = pattern_fraction(mats, k, rows, uv, rate * width[None], filtered)
+    frac = pattern_fraction(mats, k, rows, uv, wuv, filtered)
     c2 = rows["tex_color2"]
     color = base + (c2 - base) * frac[None]
     if IMAGE in kinds:
@@ -207,3 +220,79 @@ def surface_color(mats, mat, uv, rate, width, filtered, rows=None):
             sel = (k == IMAGE) & (img_id == j)
             color = jnp.where(sel[None], base * bilinear(img, uv), color)
     return color
+
+
+# ----------------------------------------------------------------------------
+# Anisotropic footprints: the box of the ray cone's ellipse on the surface, in uv
+# ----------------------------------------------------------------------------
+
+MIN_COS = 0.02  # the footprint's elongation 1 / |cos| is capped at 1 / MIN_COS
+
+
+def needs_footprint(mats, filtered: bool) -> bool:
+    """Whether shading needs texture footprints: filtering on and a checker or stripes
+    among the materials (static)."""
+    return bool(filtered) and (CHECKER in mats.kinds_present or STRIPES in mats.kinds_present)
+
+
+def hit_with_uv_shifts(hit_fn, o, d, needed: bool):
+    """``hit_fn(o)`` (a :class:`~raytrax.intersect.Hit` of rays from origins ``o (3, n)``
+    along unit ``d (3, n)``) and, when ``needed``, the ray differentials of its ``uv``:
+    ``(e, duv)`` with ``e (2, 3, n)`` two unit vectors across each ray (orthogonal to
+    ``d`` and to each other) and ``duv (2, 2, n)`` the change of ``uv`` per unit parallel
+    shift of the ray along each of them (else ``None``).
+
+    One forward-mode pass (``jax.jvp``, both shifts batched by ``jax.vmap``) through
+    the hit: the search is stop-gradient and runs once, and only the kinds' per-ray hit
+    recomputation carries the shifts. So the derivatives are exact for every kind
+    (planes, spheres, box faces, triangles...; curvature included) with no per-kind
+    code here: nothing needs to know how a kind lays out ``(u, v)``."""
+    if not needed:
+        return hit_fn(o), None
+    # Two unit vectors across the rays: x (z for rays near x) without its part along d.
+    ax = (jnp.abs(d[0]) < 0.9).astype(d.dtype)
+    f = jnp.stack([ax, jnp.zeros_like(ax), 1.0 - ax])
+    e1 = V.normalize(f - V.dot(f, d)[None] * d)
+    e = jnp.stack([e1, V.cross(d, e1)])
+
+    def shifted(s):
+        return jax.jvp(hit_fn, (o,), (s,))
+
+    hit, dhit = jax.vmap(shifted, out_axes=(None, 0))(e)
+    return hit, (e, dhit.uv)
+
+
+def footprint_widths(shifts, d, normal, width, min_cos=MIN_COS):
+    """Box-filter widths ``(2, n)`` in uv units of ray cones meeting a surface.
+
+    A cone of width ``width (n,)`` at the hit, along unit directions ``d (3, n)``,
+    meets the surface (unit normal ``normal (3, n)``, either side) in an ellipse: its
+    long axis lies along ``a``, the unit projection of ``d`` on the tangent plane, with
+    length ``width / |cos|`` (``cos = d . normal``), its short axis along ``b = normal x
+    a`` with length ``width``. With ``J`` the uv Jacobian along the surface, the
+    ellipse's extent along ``u`` and along ``v`` is
+
+        ``w_k = width * sqrt((J_k a / |cos|)^2 + (J_k b)^2)``  (``k = u, v``),
+
+    and these are the widths of the box filter (the ellipse's bounding box in uv). At
+    normal incidence this is the isotropic ``width * |grad_k|``; at grazing incidence
+    the box is long along the view only, so a pattern averages out along the view and
+    stays sharp across it. The elongation ``1 / |cos|`` is capped at ``1 / min_cos``.
+
+    ``J a`` and ``J b`` come from the ray differentials ``shifts = (e, duv)`` of
+    :func:`hit_with_uv_shifts`: shifting a ray across itself along ``m``, the part of
+    the normal across the ray, moves the hit by ``-a / cos`` (this is where the ellipse
+    is long), and along ``d x m`` it moves the hit by ``b``; ``m`` is written in the
+    basis ``e`` and the shifts combine linearly. Finite in value and gradient
+    everywhere, also at ``cos = 0`` and at normal incidence (where ``m = 0`` and any
+    direction will do: the ellipse is a circle).
+    """
+    e, duv = shifts
+    cos = V.dot(d, normal)
+    mh = V.normalize(normal - cos[None] * d, fallback=e[0])
+    m1, m2 = V.dot(e[0], mh), V.dot(e[1], mh)
+    j_long = m1[None] * duv[0] + m2[None] * duv[1]  # J a / cos (up to sign): the long axis
+    j_short = m1[None] * duv[1] - m2[None] * duv[0]  # J b (up to sign): the short axis
+    ac = jnp.abs(cos)
+    j_long = j_long * (ac / jnp.maximum(ac, min_cos))[None]
+    return width[None] * V.safe_sqrt(j_long * j_long + j_short * j_short)
