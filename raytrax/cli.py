@@ -112,6 +112,12 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="SCENE",
         help="a TOML scene file (default: the seed scene cosc363.toml)",
     )
+    sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scene files (for TOML editors)",
+        description="Print the JSON Schema of scene files, generated from the primitive kinds and light "
+        "types this raytrax has, for completion and checking in TOML editors.",
+    )
     return p
 
 
@@ -376,6 +382,15 @@ def cost_estimate(desc) -> dict:
     )
 
 
+def _cmd_schema() -> int:
+    import json
+
+    from .scenefile.schema import json_schema
+
+    print(json.dumps(json_schema(), indent=2))
+    return 0
+
+
 def _cmd_info(args) -> int:
     path, d = _load(args.scene)
     r, c = d.render, d.camera
@@ -578,6 +593,8 @@ def _main(argv):
 
             enable_compilation_cache()
             return _cmd_render(args)
+        if args.command == "schema":
+            return _cmd_schema()
         return _cmd_info(args)
     except SystemExit:  # --help, --version
         raise

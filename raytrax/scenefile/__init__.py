@@ -46,6 +46,7 @@ from .description import (
 )
 from .errors import SceneError
 from .parse import load_description, load_scene, loads_description
+from .schema import json_schema
 from .write import dumps_scene, save_scene
 
 __all__ = [
@@ -71,4 +72,5 @@ __all__ = [
     "OBJECT_TYPES",
     "TEXTURE_KINDS",
     "check_render_value",
+    "json_schema",
 ]
