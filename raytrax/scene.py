@@ -379,6 +379,16 @@ class SceneBuilder:
     (``material.red.color: expected an [r, g, b] array of numbers in [0, 1] in
     physical shading (or one number for grey), got [2.0, 1.0, 1.0]``).
 
+    Arguments: ``shading`` (``"classic"`` or ``"physical"``), ``width``, ``height``
+    (pixels), ``spp`` (samples per pixel, a square number), ``max_depth`` (specular
+    bounces), ``background`` (RGB radiance of escaped rays), ``ambient`` (RGB
+    classic ambient light), ``filter_textures`` (box-filter procedural textures over
+    each sample's footprint), ``name``. Objects are added with one method per
+    primitive kind (``sphere``, ``plane``, ``quad``, ``disk``, ``triangle``,
+    ``tetrahedron``, ``mesh``, ``box``; generated from :data:`raytrax.shapes.KINDS`)
+    or :meth:`add`; lights with ``light`` (point), ``directional_light`` or
+    :meth:`add_light`. Every method returns the builder, so calls chain.
+
     The default image is **640 x 480** (as in scene files), one sample per pixel,
     ``max_depth`` 5; the default camera is the seed raytracer's (at the origin looking
     down -z, vertical field of view :data:`raytrax.limits.SEED_FOV`, about 28.07
@@ -427,7 +437,7 @@ class SceneBuilder:
         up=_C.up,
         fov=_C.fov,
     ):
-        """Place the camera: ``position``, the point it looks at, the ``up``
+        """Place the camera: ``position``, the point ``look_at`` it looks at, the ``up``
         direction and the *vertical* field of view ``fov`` in degrees, in (0, 180)
         (default :data:`raytrax.limits.SEED_FOV`)."""
         pos = _arr(position, None, (3,), "camera.position")

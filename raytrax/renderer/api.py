@@ -32,7 +32,11 @@ def render(
     """Render ``scene`` to an ``(height, width, 3)`` linear RGB image.
 
     Keywords override the scene's own render settings (same names as the scene
-    file's ``[render]`` keys). ``key`` (a PRNG key) jitters each sample inside
+    file's ``[render]`` keys): ``width``, ``height`` (pixels), ``spp`` (samples per
+    pixel, a square number), ``max_depth`` (specular bounces), ``filter_textures``
+    (box-filter procedural textures over each sample's footprint), ``branches``
+    (specular branches kept per camera sample at each depth; default 2 where a
+    material can split a path into reflected and refracted rays, else 1). ``key`` (a PRNG key) jitters each sample inside
     its sub-pixel stratum; without it the ``n x n`` grid is regular. The image
     has the scene's float dtype (float32, or float64 for a float64 scene with
     x64 enabled). Row 0 is the top row.

@@ -12,7 +12,16 @@ SUBTILE = 4096
 
 @dataclasses.dataclass(frozen=True)
 class RenderOptions:
-    """Static options of one compiled render (see :class:`~raytrax.scene.Settings`)."""
+    """Static options of one compiled render; each distinct value compiles once.
+
+    - ``settings``: the scene's :class:`~raytrax.scene.Settings` with the overrides
+      of :func:`raytrax.render` applied (size, spp, depth, shading...).
+    - ``tile_rays``: camera rays per tile (``lax.map`` over tiles); reverse mode
+      holds one tile's rays at a time, so memory scales with it.
+    - ``subtile``: rays per sub-tile of the dead-ray compaction at depth >= 1.
+    - ``jitter``: samples are jittered inside their strata (a PRNG key was given).
+    - ``devices``: number of devices the tiles are sharded over.
+    """
 
     settings: Settings
     tile_rays: int = RAYS_PER_TILE

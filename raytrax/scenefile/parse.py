@@ -447,5 +447,8 @@ def load_description(path) -> SceneDescription:
 
 
 def load_scene(path, *, dtype=None) -> Scene:
-    """Load a scene file (TOML, see ``docs/scene-format.md``) into a :class:`Scene`."""
+    """Load the scene file at ``path`` (TOML, see ``docs/scene-format.md``) into a
+    :class:`~raytrax.scene.Scene` whose float leaves have ``dtype`` (default float32).
+    Any problem raises :class:`SceneError` naming the file, the key path, what was
+    expected and what was found."""
     return load_description(path).build(dtype)
