@@ -76,8 +76,8 @@ def _search(scene, o, d, tmax):
     ray = (o[0], o[1], o[2], d[0], d[1], d[2])
     nm = scene.materials.color.shape[0]
     return (
-        I._closest_kind(tri, ray, 0.0),
-        I._closest_kind(tri._replace(accel=None), ray, 0.0),
+        I.closest_kind(tri, ray, 0.0),
+        I.closest_kind(tri._replace(accel=None), ray, 0.0),
         I.occluder_counts(kinds, o, d, tmax, nm),
         I.occluder_counts(brute, o, d, tmax, nm),
     )
