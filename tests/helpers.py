@@ -54,3 +54,21 @@ def ray_sphere_np(o, d, center, radius):
     t1, t2 = -b - sq, -b + sq
     t = np.where(t1 > 0, t1, np.where(t2 > 0, t2, np.inf))
     return np.where(disc >= 0, t, np.inf)
+
+
+def jittered_central_differences(loss, q0, step, spp, keys):
+    """Central differences of ``loss(q, spp=spp, key=key)`` at ``q0 (P,)``, each pair of
+    jittered renders sharing one key, averaged over ``keys`` keys: the reference for
+    edge gradients (the anti-aliased image is smooth in the parameters). Returns the
+    mean ``(P,)`` and its standard error ``(P,)``."""
+    import jax
+
+    f = jax.jit(lambda q, key: loss(q, spp=spp, key=key))
+    eye = step * jnp.eye(q0.shape[0], dtype=q0.dtype)
+    fd = np.array(
+        [
+            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * step)) for e in eye]
+            for k in (jax.random.key(i) for i in range(keys))
+        ]
+    )
+    return fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))

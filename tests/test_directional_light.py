@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import camera_rays_np, ray_sphere_np
+from helpers import camera_rays_np, jittered_central_differences, ray_sphere_np
 
 import raytrax as rt
 from raytrax.testing import check_gradients, smooth_weights
@@ -339,14 +339,7 @@ def test_shadow_edge_gradients_match_finite_differences():
         s = rt.with_parameters(s0, {"light[0].direction": q[:3], "object[1].center": q[3:]})
         return jnp.mean(w * rt.render(s, **kw))
 
-    f = jax.jit(lambda q, key: loss(q, spp=REF_SPP, key=key))
-    fd = np.array(
-        [
-            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * STEP)) for e in STEP * jnp.eye(6)]
-            for k in (jax.random.key(i) for i in range(REF_KEYS))
-        ]
-    )
-    ref, se = fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
+    ref, se = jittered_central_differences(loss, q0, STEP, REF_SPP, REF_KEYS)
     g_edge = np.asarray(jax.grad(lambda q: loss(q, edge_gradients=True))(q0))
     g_plain = np.asarray(jax.grad(loss)(q0))
     bnd_ref, bnd_edge = ref - g_plain, g_edge - g_plain

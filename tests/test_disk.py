@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import camera_rays_np
+from helpers import camera_rays_np, jittered_central_differences
 
 import raytrax as rt
 from raytrax.intersect import EPS_REL
@@ -333,14 +333,7 @@ def test_edge_gradients_of_radius_and_centre_match_finite_differences():
         s = rt.with_parameters(s0, {"object[0].center": q[:3], "object[0].radius": q[3]})
         return jnp.mean(w * rt.render(s, **kw))
 
-    f = jax.jit(lambda q, key: loss(q, spp=REF_SPP, key=key))
-    fd = np.array(
-        [
-            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * STEP)) for e in STEP * jnp.eye(4)]
-            for k in (jax.random.key(i) for i in range(REF_KEYS))
-        ]
-    )
-    ref, se = fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
+    ref, se = jittered_central_differences(loss, q0, STEP, REF_SPP, REF_KEYS)
     g_edge = np.asarray(jax.grad(lambda q: loss(q, edge_gradients=True))(q0))
     g_plain = np.asarray(jax.grad(loss)(q0))
     text = (

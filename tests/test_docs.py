@@ -168,7 +168,7 @@ def doc_runs(request, tmp_path_factory):
     selected = {
         item.callspec.params["path"]
         for item in request.session.items
-        if item.originalname == "test_code_blocks_run" and hasattr(item, "callspec")
+        if getattr(item, "originalname", None) == "test_code_blocks_run" and hasattr(item, "callspec")
     }
     order = sorted(selected, key=lambda p: -len(runnable(p)))
     pool = ThreadPoolExecutor(max_workers=max(1, jobs))

@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import jittered_central_differences
 
 import raytrax as rt
 from raytrax import edges
@@ -281,14 +282,7 @@ def test_sphere_centre_and_radius_over_a_textured_wall():
         s = rt.with_parameters(s0, {"object[1].center": q[:3], "object[1].radius": q[3]})
         return jnp.mean(w * rt.render(s, **kw))
 
-    f = jax.jit(lambda q, key: loss(q, spp=4096, key=key))
-    fd = np.array(
-        [
-            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * SPHERE_STEP)) for e in SPHERE_STEP * jnp.eye(4)]
-            for k in (jax.random.key(i) for i in range(SPHERE_KEYS))
-        ]
-    )
-    ref, se = fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
+    ref, se = jittered_central_differences(loss, q0, SPHERE_STEP, 4096, SPHERE_KEYS)
     g_edge = np.asarray(jax.grad(lambda q: loss(q, edge_gradients=True))(q0))
     g_plain = np.asarray(jax.grad(loss)(q0))
     text = (
