@@ -29,7 +29,7 @@ from . import textures as tx
 from .camera import Camera
 from .lights import BY_FIELD as LIGHT_BY_FIELD
 from .lights import BY_NAME as LIGHT_BY_NAME
-from .lights import LIGHTS
+from .lights import LIGHTS, LightSpec
 from .materials import Materials
 from .shapes import BY_FIELD, BY_NAME, KINDS
 
@@ -662,7 +662,7 @@ class SceneBuilder:
 def _builder_method(spec, args, optional, doc):
     """A :class:`SceneBuilder` method for a registered kind or light type: positional
     ``args``, then (objects) the material, then keyword ``optional`` parameters."""
-    is_light = not hasattr(spec, "triangle_family")
+    is_light = isinstance(spec, LightSpec)
     params = [inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
     params += [inspect.Parameter(a, inspect.Parameter.POSITIONAL_OR_KEYWORD) for a in args]
     if not is_light:

@@ -23,9 +23,10 @@ MAX_FACES = 6  # faces of the largest convex solid (a box)
 class Prims(NamedTuple):
     """Every primitive as a sphere or a convex planar polygon (component-major).
 
-    Global ids: spheres ``[0, ns)``, then polygons: planes, quads, triangles
-    (in the order of :meth:`raytrax.Scene.merged_triangles`), box faces (6 per box,
-    face ``2 axis + (side > 0)``).
+    Global ids follow the kind registry (:data:`raytrax.shapes.KINDS`): spheres
+    ``[0, ns)``, then every other kind's polygons in registry order (planes, quads,
+    disks as round polygons, triangles, tetrahedron faces, mesh faces, box faces:
+    6 per box, face ``2 axis + (side > 0)``); see :func:`id_offsets`.
     """
 
     c: jax.Array  # (3, Ns) sphere centres

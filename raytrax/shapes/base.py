@@ -210,9 +210,6 @@ class KindSpec:
         cols = [F([p[k.name] for p, _ in items], (-1,) + k.shape) for k in self.keys]
         return self.module(*cols, I([m for _, m in items]))
 
-    def empty(self, F: Callable, I: Callable):
-        return self.build([], F, I)
-
     def count(self, group) -> int:
         return int(group.material.shape[0])
 
