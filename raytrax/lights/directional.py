@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import vec as V
-from ..shapes.base import Key
+from ..shapes.base import Key, check_shape
 from .base import LightSample, LightSpec
 
 
@@ -31,11 +31,8 @@ class DirectionalLights(eqx.Module):
 
     def __check_init__(self):
         n = self.direction.shape[0]
-        if self.direction.shape != (n, 3) or self.irradiance.shape != (n, 3):
-            raise ValueError(
-                f"DirectionalLights: expected direction and irradiance of shape (L, 3), got "
-                f"{self.direction.shape} and {self.irradiance.shape}"
-            )
+        check_shape("DirectionalLights.direction", self.direction, (n, 3))
+        check_shape("DirectionalLights.irradiance", self.irradiance, (n, 3))
 
 
 class DirectionalLightSpec(LightSpec):

@@ -8,7 +8,7 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from .. import vec as V
-from ..shapes.base import Key
+from ..shapes.base import Key, check_shape
 from .base import LightSample, LightSpec
 
 
@@ -26,11 +26,8 @@ class PointLights(eqx.Module):
 
     def __check_init__(self):
         n = self.position.shape[0]
-        if self.position.shape != (n, 3) or self.intensity.shape != (n, 3):
-            raise ValueError(
-                f"PointLights: expected position and intensity of shape (L, 3), got "
-                f"{self.position.shape} and {self.intensity.shape}"
-            )
+        check_shape("PointLights.position", self.position, (n, 3))
+        check_shape("PointLights.intensity", self.intensity, (n, 3))
 
 
 class PointLightSpec(LightSpec):
