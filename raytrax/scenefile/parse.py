@@ -81,6 +81,19 @@ OBJECT_KEYS["mesh"] = ("file", "scale", "translate", "vertices", "faces")
 OBJECT_REQUIRED = {k.name: tuple(key.name for key in k.keys if key.default is None) for k in KINDS}
 
 
+def _array_of_tables(data: dict, key: str) -> list:
+    """``data[key]`` as a list of ``[[key]]`` sections (empty when absent), within its count limit."""
+    raw = data.get(key, [])
+    if isinstance(raw, dict):
+        raise KeyProblem(key, f"expected an array of tables ([[{key}]] sections), got a table ([{key}])")
+    if not isinstance(raw, list):
+        raise KeyProblem(key, f"expected an array of tables ([[{key}]] sections), got {show(raw)}")
+    msg = L.check_count(key, len(raw))
+    if msg:
+        raise KeyProblem(key, msg)
+    return raw
+
+
 class _Parser:
     def __init__(self, source: str, base_dir: str | None):
         self.source = source
@@ -117,14 +130,7 @@ class _Parser:
         camera = self.camera(data.get("camera", {}))
         render = self.render(data.get("render", {}))
 
-        lights_raw = data.get("light", [])
-        if isinstance(lights_raw, dict):
-            raise KeyProblem("light", "expected an array of tables ([[light]] sections), got a table ([light])")
-        if not isinstance(lights_raw, list):
-            raise KeyProblem("light", f"expected an array of tables ([[light]] sections), got {show(lights_raw)}")
-        msg = L.check_count("light", len(lights_raw))
-        if msg:
-            raise KeyProblem("light", msg)
+        lights_raw = _array_of_tables(data, "light")
         lights = [self.light(v, f"light[{i}]") for i, v in enumerate(lights_raw)]
 
         mats_raw = data.get("material", {})
@@ -146,14 +152,7 @@ class _Parser:
         for mname, v in mats_raw.items():
             materials[mname] = self.material(v, join("material", mname))
 
-        objs_raw = data.get("object", [])
-        if isinstance(objs_raw, dict):
-            raise KeyProblem("object", "expected an array of tables ([[object]] sections), got a table ([object])")
-        if not isinstance(objs_raw, list):
-            raise KeyProblem("object", f"expected an array of tables ([[object]] sections), got {show(objs_raw)}")
-        msg = L.check_count("object", len(objs_raw))
-        if msg:
-            raise KeyProblem("object", msg)
+        objs_raw = _array_of_tables(data, "object")
         objects = []
         faces_total = 0
         for i, v in enumerate(objs_raw):
