@@ -26,13 +26,18 @@ lights), at each size with spp 4 and depth 5 (``--spp``, ``--depth``):
 * the same for ``eqx.filter_value_and_grad`` (under ``eqx.filter_jit``) of an
   image MSE loss with respect to the light positions and the refractive indices;
 * Mitsuba 3 (``llvm_ad_rgb``) on the physical scene in the same run: forward
-  ``mi.render`` (stratified sampler, box filter) with the Whitted integrator of
-  ``benchmarks/mitsuba_scene.py``, the same at raytrax's sample positions, and
-  the gradient of the same loss w.r.t. the light positions (Dr.Jit reverse
-  mode, ``dr.backward``; Mitsuba's dielectric IOR is not a differentiable
+  ``mi.render`` (stratified sampler, box filter) with the one-kernel Whitted
+  integrator of ``benchmarks/mitsuba_scene.py`` (``whitted_kernel``: one
+  symbolic loop over the depth, glass sampled with probability F), the
+  deterministic full-tree wavefront at raytrax's sample positions (the image
+  reference; slow, many small kernels, not a speed figure), and the gradient of
+  the same loss w.r.t. the light positions (``mi.render`` + ``dr.backward``
+  through ``whitted_kernel``; Mitsuba's dielectric IOR is not a differentiable
   parameter, so that part is not applicable). raytrax / Mitsuba ratios are
   printed from medians, and from renders *interleaved* in one process (the
   median of per-pair ratios, robust to the load of a shared machine).
+  ``benchmarks/bench_speed.py`` is the fuller comparison (Mitsuba's ``path``
+  too, first calls and memory as ratios).
 
 ``--scaling``: render time against the number of spheres (10, 100, 1000) and of
 triangles (10, 100, 1000, 10000) and against max_depth (1..8), raytrax and
@@ -57,6 +62,7 @@ import statistics  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
+from typing import Any  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -92,7 +98,9 @@ def _cache_entries(cache):
 
 
 def _scene(name, W, H, spp, depth):
-    import scenes
+    import scenes as scenes_module
+
+    scenes: Any = scenes_module  # benchmarks/scenes.py (pyright resolves the name to the repo's scenes/ folder)
 
     if name == "seed":
         return scenes.seed_scene(W, H, spp, depth)
@@ -148,7 +156,7 @@ def worker_raytrax(cfg):
     first_pixel = time.perf_counter() - _T0
     new_entries = _cache_entries(cfg.get("cache")) - n_cache
     times = [_timed(fn) for _ in range(cfg["repeats"])]
-    out = dict(
+    out: dict[str, Any] = dict(
         first=t_first,
         to_first_pixel=first_pixel,
         times=times,
@@ -162,31 +170,16 @@ def worker_raytrax(cfg):
     return out
 
 
-def _mi_grad_fn(ms, mscene, W, H, spp):
-    import drjit as dr
-    import mitsuba as mi
+def _mi_kernel_scene(ms, scene):
+    """The Mitsuba scene with the one-kernel Whitted integrator (the one to time)."""
+    return ms.load(scene, sampler="stratified", integrator="whitted_kernel")
 
-    params = mi.traverse(mscene)
-    keys = [k for k in params.keys() if k.endswith(".position") and k.startswith("light")]
 
-    def grad():
-        xs = []
-        for k in keys:
-            x = mi.Point3f(dr.detach(params[k]))
-            dr.enable_grad(x)
-            params[k] = x
-            xs.append(x)
-        params.update()
-        img = ms.grid_radiance(mscene, W, H, spp)
-        loss = dr.mean(dr.square(img - 0.5), axis=None)
-        dr.backward(loss)
-        g = [dr.grad(x).numpy() for x in xs]
-        for k, x in zip(keys, xs):
-            params[k] = mi.Point3f(dr.detach(x))
-        params.update()
-        return float(loss.numpy().ravel()[0]), g
+def _mi_grad_fn(mscene, spp):
+    """``mi.render`` + ``dr.backward`` of the image MSE w.r.t. the light positions."""
+    import bench_speed
 
-    return grad
+    return bench_speed.mi_grad_fn(mscene, spp)
 
 
 def worker_mitsuba(cfg):
@@ -198,21 +191,22 @@ def worker_mitsuba(cfg):
         return dict(error=str(e))
     W, H, spp = cfg["W"], cfg["H"], cfg["spp"]
     scene = _scene(cfg["scene"], W, H, spp, cfg["depth"])
-    mscene = ms.load(scene, sampler="stratified")
+    mscene = _mi_kernel_scene(ms, scene)
+    mref = ms.load(scene, sampler="stratified")  # deterministic wavefront: the image reference
     rss0 = _rss_mb()
-    out = dict(rss_before=rss0)
+    out: dict[str, Any] = dict(rss_before=rss0)
     out["native_first"] = _timed(lambda: ms.render_native(mscene, spp=spp))
     out["native_times"] = [_timed(lambda: ms.render_native(mscene, spp=spp)) for _ in range(cfg["repeats"])]
-    out["grid_first"] = _timed(lambda: ms.render_grid(mscene, W, H, spp))
-    out["grid_times"] = [_timed(lambda: ms.render_grid(mscene, W, H, spp)) for _ in range(cfg["repeats"])]
     out["rss_fwd"] = _rss_mb()
+    out["grid_first"] = _timed(lambda: ms.render_grid(mref, W, H, spp))
+    out["grid_times"] = [_timed(lambda: ms.render_grid(mref, W, H, spp)) for _ in range(cfg["repeats"])]
     if cfg.get("grad", True):
-        g = _mi_grad_fn(ms, mscene, W, H, spp)
+        g = _mi_grad_fn(mscene, spp)
         out["grad_first"] = _timed(g)
         out["grad_times"] = [_timed(g) for _ in range(cfg["grad_repeats"])]
     out["rss"] = _rss_mb()
     if cfg.get("count", True):
-        out["rays"] = ms.count_rays(mscene, W, H, spp)
+        out["rays"] = ms.count_rays(mref, W, H, spp)
     return out
 
 
@@ -228,11 +222,11 @@ def worker_paired(cfg):
         ms.ensure_mitsuba(cfg.get("variant", ms.DEFAULT_VARIANT))
     except ms.MitsubaUnavailable as e:
         return dict(error=str(e))
-    mscene = ms.load(scene, sampler="stratified")
+    mscene = _mi_kernel_scene(ms, scene)
     mfwd = lambda: ms.render_native(mscene, spp=spp)  # noqa: E731
-    mgrad = _mi_grad_fn(ms, mscene, W, H, spp)
+    mgrad = _mi_grad_fn(mscene, spp)
     fwd(), mfwd()
-    out = dict(fwd=[], mi_fwd=[], grad=[], mi_grad=[])
+    out: dict[str, Any] = dict(fwd=[], mi_fwd=[], grad=[], mi_grad=[])
     for _ in range(cfg["repeats"]):
         out["fwd"].append(_timed(fwd))
         out["mi_fwd"].append(_timed(mfwd))
@@ -260,7 +254,7 @@ def worker_scaling(cfg):
         fwd, _ = _rt_fns(scene)
         first = _timed(fwd)
         rt_t = statistics.median(_timed(fwd) for _ in range(cfg["repeats"]))
-        r = dict(scene=name, depth=depth, first=first, rt=rt_t, bvh=scene.bvh is not None)
+        r: dict[str, Any] = dict(scene=name, depth=depth, first=first, rt=rt_t, bvh=scene.bvh is not None)
         if name.startswith("tris"):  # crossover: the same render by brute force and with the BVH
             import dataclasses
 
@@ -278,7 +272,7 @@ def worker_scaling(cfg):
                 finally:
                     B.MIN_TRIANGLES = old
         if have_mi:
-            m = ms.load(scene)
+            m = _mi_kernel_scene(ms, scene)
             ms.render_native(m)
             r["mi"] = statistics.median(_timed(lambda: ms.render_native(m)) for _ in range(cfg["repeats"]))
         rows.append(r)
@@ -294,7 +288,7 @@ WORKERS = dict(raytrax=worker_raytrax, mitsuba=worker_mitsuba, paired=worker_pai
 # ----------------------------------------------------------------------------
 
 
-def run_worker(cfg, timeout=3600):
+def run_worker(cfg, timeout=3600) -> dict[str, Any]:
     env = dict(os.environ)
     env.setdefault("JAX_PLATFORMS", "cpu")
     t = time.perf_counter()
@@ -392,7 +386,7 @@ def main(argv=None):
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",") if s]
     scene_names = [s for s in args.scenes.split(",") if s]
     spp, depth = args.spp, args.depth
-    results = dict(
+    results: dict[str, Any] = dict(
         machine=dict(
             cpus=os.cpu_count(),
             processor=platform.processor() or platform.machine(),
@@ -460,7 +454,7 @@ def main(argv=None):
                 warm = None
                 if si < args.warm_sizes:
                     warm = run_worker(base | dict(what="fwd", repeats=0, also_grad_first=not args.no_grad))
-                run = dict(scene=name, W=W, H=H, spp=spp, depth=depth, fwd=fw, grad=gr, warm=warm)
+                run: dict[str, Any] = dict(scene=name, W=W, H=H, spp=spp, depth=depth, fwd=fw, grad=gr, warm=warm)
                 total_rays = None
                 if name == "physical" and mi_res is not None:
                     total_rays = sum(mi_res["rays"].values())
@@ -483,7 +477,7 @@ def main(argv=None):
                             f"  {'':<24s} camera rays {rate(cam_rays, steady)}"
                             + (
                                 f", total rays {rate(total_rays, steady)} ({total_rays:,} rays: "
-                                + ", ".join(f"{k} {v:,}" for k, v in mi_res["rays"].items())
+                                + ", ".join(f"{k} {v:,}" for k, v in (mi_res or {}).get("rays", {}).items())
                                 + ")"
                                 if total_rays
                                 else ", total rays n/a (counted for the physical scene only)"
@@ -503,14 +497,15 @@ def main(argv=None):
                 if name == "physical" and mi_res is not None:
                     nf, gf = med(mi_res["native_times"]), med(mi_res["grid_times"])
                     print(
-                        f"  Mitsuba forward (mi.render) steady {fmt_t(nf)} (first {fmt_t(mi_res['native_first'])}, "
-                        f"camera rays {rate(cam_rays, nf)}, total {rate(total_rays, nf)}); at raytrax's samples "
-                        f"{fmt_t(gf)}; peak RSS {mi_res['rss_fwd']:.0f} MiB"
+                        f"  Mitsuba forward (mi.render, one-kernel Whitted) steady {fmt_t(nf)} "
+                        f"(first {fmt_t(mi_res['native_first'])}, camera rays {rate(cam_rays, nf)}, "
+                        f"total {rate(total_rays, nf)}); peak RSS {mi_res['rss_fwd']:.0f} MiB; "
+                        f"[deterministic wavefront reference at raytrax's samples: {fmt_t(gf)}]"
                     )
                     if "grad_times" in mi_res:
                         mg = med(mi_res["grad_times"])
                         print(
-                            f"  Mitsuba gradient (light positions, dr.backward) steady {fmt_t(mg)} "
+                            f"  Mitsuba gradient (light positions, one-kernel Whitted + dr.backward) steady {fmt_t(mg)} "
                             f"(first {fmt_t(mi_res['grad_first'])}); peak RSS {mi_res['rss']:.0f} MiB; "
                             f"ior: n/a (not differentiable in Mitsuba)"
                         )

@@ -39,6 +39,22 @@ distance to the plane's point); quads, triangles, tetrahedra, boxes and meshes
 are ``mi.Mesh`` objects with flat face normals (triangles from raytrax's own
 definitions, so a regular tetrahedron or a rotated box is the same solid).
 
+Integrators (``scene_dict(..., integrator=...)``):
+
+* ``"whitted"`` (the default): the deterministic full tree above, run as a Python
+  wavefront (``dr.compress`` and ``dr.eval`` at every depth, so Dr.Jit launches
+  many small kernels). It is the *image reference* (PSNR against raytrax), not
+  a measure of Mitsuba's speed;
+* ``"whitted_kernel"``: the same Whitted paths as a Monte Carlo renderer traces
+  them, a plain ``mi.SamplingIntegrator`` whose ``sample`` is one symbolic
+  ``dr.while_loop`` over the depth with masks, so ``mi.render`` records the whole
+  render into one LLVM kernel; at a dielectric it follows the reflected ray with
+  probability ``F``, else the refracted one. Its expectation is the deterministic
+  tree (``benchmarks/bench_speed.py`` checks the PSNR at high spp). This is the
+  Whitted integrator to time;
+* ``"path"``: Mitsuba's built-in path tracer (it also gathers indirect diffuse
+  light, so more work and a different image).
+
 Two ways to render:
 
 * :func:`render_native`: ``mi.render`` with Mitsuba's film and sampler: ``hdrfilm``
@@ -76,9 +92,13 @@ How the raytrax and Mitsuba configurations differ:
   benchmarks/mitsuba_scene.py (a subclass of Mitsuba's ADIntegrator, so
   sampler, camera rays and film splatting are Mitsuba's code), run as a
   wavefront that compacts live rays at each depth and follows *every* delta
-  branch (full tree). raytrax tests every ray against every primitive, except triangle lists of more than 64 (a BVH).
+  branch (full tree). This wavefront is the image reference, not a speed
+  figure: benchmarks/bench_speed.py times Mitsuba's `path` and a one-kernel
+  Whitted integrator instead. raytrax tests every ray against every primitive,
+  except triangle lists of more than 64 (a BVH).
 - raytrax keeps at most `branches` (= 2 with glass) specular rays per camera
-  sample per depth, dropping the lightest; Mitsuba's integrator keeps all of them.
+  sample per depth, dropping the lightest; the reference wavefront keeps all of
+  them (the one-kernel integrator samples one per vertex, F-weighted at glass).
 - Sampling: raytrax uses the cell centres of an n x n grid per pixel; Mitsuba's
   'native' mode uses its stratified sampler (jittered within each cell) and the
   hdrfilm box filter; 'grid' mode feeds Mitsuba exactly raytrax's positions.
@@ -86,9 +106,10 @@ How the raytrax and Mitsuba configurations differ:
   distance; shadow-ray offsets differ (raytrax 1e-4 relative along the normal,
   Mitsuba its own ray epsilon).
 - Mitsuba runs in float32 with its LLVM JIT on all cores; raytrax in float32 on
-  XLA:CPU. Mitsuba's gradient is Dr.Jit reverse mode through the same integrator
-  at raytrax's sample positions, w.r.t. the light positions only (its dielectric
-  IOR is not differentiable); raytrax's also covers the IORs."""
+  XLA:CPU. Mitsuba's timed gradients are Dr.Jit reverse mode (mi.render +
+  dr.backward) through the one-kernel integrator or `path`, w.r.t. the light
+  positions only (its dielectric IOR is not differentiable); raytrax's also
+  covers the IORs."""
 
 
 class MitsubaUnavailable(RuntimeError):
@@ -98,10 +119,12 @@ class MitsubaUnavailable(RuntimeError):
 _MI = None
 
 
-def ensure_mitsuba(variant: str = DEFAULT_VARIANT):
+def ensure_mitsuba(variant: str = DEFAULT_VARIANT, *, probe: bool = True):
     """Import mitsuba, set ``variant`` and check that its JIT backend runs.
 
     Raises :class:`MitsubaUnavailable` with a hint when it cannot start.
+    ``probe=False`` skips the test render in a subprocess (for a process whose
+    parent has already run it).
     """
     global _MI
     if _MI is not None:
@@ -114,8 +137,8 @@ def ensure_mitsuba(variant: str = DEFAULT_VARIANT):
             f"Mitsuba 3 is not installed ({e}). Install the benchmark extra: "
             "pip install -e '.[bench]'  (or pip install mitsuba)"
         ) from e
-    probe = _probe(variant)
-    if probe:
+    failure = _probe(variant) if probe else ""
+    if failure:
         hint = ""
         if variant.startswith("llvm"):
             hint = (
@@ -124,7 +147,7 @@ def ensure_mitsuba(variant: str = DEFAULT_VARIANT):
                 "Mitsuba's kernels), or point DRJIT_LIBLLVM_PATH at a newer libLLVM.so; "
                 "or use the variant 'scalar_rgb'."
             )
-        raise MitsubaUnavailable(f"Mitsuba variant {variant!r} cannot start: {probe}.{hint}")
+        raise MitsubaUnavailable(f"Mitsuba variant {variant!r} cannot start: {failure}.{hint}")
     mi.set_variant(variant)
     _register_integrator(mi, dr)
     _MI = mi
@@ -169,7 +192,7 @@ def _register_integrator(mi, dr):
     global _WHITTED_CLS
     if _WHITTED_CLS is not None:
         return
-    from mitsuba.ad.integrators.common import ADIntegrator
+    from mitsuba.ad.integrators.common import ADIntegrator  # pyright: ignore[reportMissingImports]
 
     class Whitted(ADIntegrator):
         """Whitted paths: direct light at every hit, both delta lobes followed.
@@ -268,7 +291,78 @@ def _register_integrator(mi, dr):
             return parts[0]
         return T(*(dr.concat([p[c] for p in parts]) for c in range(3)))
 
+    class WhittedKernel(mi.SamplingIntegrator):
+        """Whitted paths as Monte Carlo renderers trace them, in one kernel.
+
+        ``sample`` is one symbolic ``dr.while_loop`` over the depth with masks (no
+        ``dr.eval``, no compaction), so ``mi.render`` records the whole render into a
+        single LLVM kernel. Per vertex: direct light from every point light (shadow
+        test), as :class:`Whitted`; then *one* delta lobe is followed: at a dielectric
+        the reflected ray with probability ``F`` and the refracted one otherwise
+        (Mitsuba's ``dielectric.sample`` with a uniform ``sample1``), at a mirror the
+        reflection; a diffuse-and-mirror ``blendbsdf`` picks its mirror with
+        ``sample1 = 0`` as :class:`Whitted` does. Its expectation is
+        :class:`Whitted`'s deterministic tree; it converges to it as spp grows.
+        ``max_iterations`` is set, so Dr.Jit can differentiate the loop in reverse mode.
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.max_depth = int(props.get("max_depth", 5))
+            bg = props.get("background", mi.ScalarColor3f(0.0))
+            self.background = [float(bg[0]), float(bg[1]), float(bg[2])]
+
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            bg = mi.Color3f(*self.background)
+            emitters = scene.emitters()
+            max_depth = self.max_depth
+            delta = mi.BSDFContext(mi.TransportMode.Radiance, int(mi.BSDFFlags.Delta))
+            ctx = mi.BSDFContext()
+
+            def cond(sampler, ray, w, L, depth, active):
+                return active
+
+            def body(sampler, ray, w, L, depth, active):
+                si = scene.ray_intersect(ray, active)
+                hit = active & si.is_valid()
+                L += dr.select(active & ~hit, w * bg, mi.Color3f(0.0))
+                bsdf = si.bsdf()
+                for em in emitters:
+                    ds, spec = em.sample_direction(si, mi.Point2f(0.5, 0.5), hit)
+                    f = bsdf.eval(ctx, si, si.to_local(ds.d), hit)
+                    need = hit & (dr.max(f) > 0.0) & (dr.max(spec) > 0.0)
+                    blocked = scene.ray_test(si.spawn_ray_to(ds.p), need)
+                    L += dr.select(need & ~blocked, w * f * spec, mi.Color3f(0.0))
+                flags = bsdf.flags()
+                mixture = mi.has_flag(flags, mi.BSDFFlags.Smooth) & mi.has_flag(flags, mi.BSDFFlags.Delta)
+                u = dr.select(mixture, 0.0, sampler.next_1d(hit))
+                bs, wk = bsdf.sample(delta, si, u, mi.Point2f(0.5, 0.5), hit)
+                w = w * wk
+                go = hit & (bs.pdf > 0.0) & (dr.max(w) > 0.0)
+                last = depth >= max_depth
+                L += dr.select(go & last, w * bg, mi.Color3f(0.0))
+                ray = si.spawn_ray(si.to_world(bs.wo))
+                return sampler, ray, w, L, depth + 1, go & ~last
+
+            state = (
+                sampler,
+                mi.Ray3f(ray),
+                mi.Color3f(1.0),
+                mi.Color3f(0.0),
+                mi.UInt32(0),
+                mi.Bool(active),
+            )
+            _, _, _, L, _, _ = dr.while_loop(state, cond, body, label="whitted_kernel", max_iterations=max_depth + 1)
+            return L, mi.Bool(True), []
+
+        def aov_names(self):
+            return []
+
+        def to_string(self):
+            return f"WhittedKernel[max_depth={self.max_depth}]"
+
     mi.register_integrator("raytrax_whitted", lambda props: Whitted(props))
+    mi.register_integrator("raytrax_whitted_kernel", lambda props: WhittedKernel(props))
     _WHITTED_CLS = Whitted
 
 
@@ -414,12 +508,20 @@ def scene_dict(
     plane_extent=None,
     variant=DEFAULT_VARIANT,
     seed=0,
+    integrator="whitted",
 ):
     """A Mitsuba scene dict for a built ``physical`` raytrax ``scene``.
 
     ``width``/``height``/``spp``/``max_depth`` override the scene's settings.
     ``sampler`` is ``"stratified"`` (jittered ``n x n`` grid) or ``"independent"``.
+    ``integrator``: ``"whitted"`` (the deterministic full-tree wavefront, the image
+    reference), ``"whitted_kernel"`` (Whitted paths sampled in one kernel) or
+    ``"path"`` (Mitsuba's built-in path tracer; ``max_depth`` is then Mitsuba's
+    own, which counts path segments: 2 is direct light only).
     """
+    kinds = {"whitted": "raytrax_whitted", "whitted_kernel": "raytrax_whitted_kernel", "path": "path"}
+    if integrator not in kinds:
+        raise ValueError(f"integrator: expected one of {sorted(kinds)}, got {integrator!r}")
     mi = ensure_mitsuba(variant)
     st = scene.settings
     if st.shading != "physical":
@@ -432,7 +534,7 @@ def scene_dict(
     d = {
         "type": "scene",
         "integrator": {
-            "type": "raytrax_whitted",
+            "type": kinds[integrator],
             "max_depth": int(depth),
             "background": mi.ScalarColor3f(*[float(x) for x in _np(scene.environment.background)]),
         },
@@ -454,6 +556,12 @@ def scene_dict(
             },
         },
     }
+    if integrator == "path":
+        if np.any(_np(scene.environment.background) != 0.0):
+            raise NotImplementedError(
+                "integrator 'path': only a black background is converted (no environment emitter)"
+            )
+        del d["integrator"]["background"]
     mats = scene.materials
     bsdfs = [
         material_bsdf(mats.color[k], mats.reflectivity[k], mats.transparency[k], mats.ior[k])
@@ -497,7 +605,7 @@ def load(scene, **kw):
 def render_native(mscene, spp=None, seed=0):
     """``mi.render`` with the scene's own sampler and box-filtered film: ``(H, W, 3)`` float32."""
     mi = ensure_mitsuba()
-    img = mi.render(mscene, spp=spp or 0, seed=seed)
+    img = mi.render(mscene, spp=spp or 0, seed=seed)  # pyright: ignore[reportArgumentType]
     return np.array(img, dtype=np.float32)
 
 
@@ -532,8 +640,8 @@ def grid_radiance(mscene, width, height, spp, counts=None, rays=None):
     mi = ensure_mitsuba()
     ray = grid_rays(mscene, width, height, spp) if rays is None else rays
     L = mscene.integrator().trace(mscene, ray, counts)
-    img = mi.Color3f(*(dr.block_sum(L[c], spp) / spp for c in range(3)))
-    return mi.TensorXf(dr.ravel(img), shape=(height, width, 3))
+    img = mi.Color3f(*(dr.block_sum(L[c], spp) / spp for c in range(3)))  # pyright: ignore[reportArgumentType]
+    return mi.TensorXf(dr.ravel(img), shape=(height, width, 3))  # pyright: ignore[reportArgumentType]
 
 
 def render_grid(mscene, width, height, spp):
