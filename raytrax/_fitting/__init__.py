@@ -24,6 +24,11 @@ can be interrupted with Ctrl-C (the best point so far is returned). Compiled
 steps are cached: fitting the same parameters of scenes of the same structure
 again (new values, new target) does not recompile.
 
+Several views of one scene are fitted at once with a list of targets and one
+camera per target (``fit(scene, [image_1, image_2], params, cameras=[cam_1,
+cam_2])``): one least-squares problem over all views' pixels, standard errors
+from all of them.
+
 Bounds are handled by reparameterisation: a parameter with a lower bound is
 ``lo + softplus(z)``, with an upper bound ``hi - softplus(z)``, with both
 ``lo + (hi - lo) sigmoid(z)``; the solver works on the unconstrained ``z``. By

@@ -30,6 +30,7 @@ from ._robust import _blurred, _resolve_search, _start_points
 from ._setup import _render_opts, _resolve_bounds, _resolve_params, _target_and_weights, _to_unconstrained
 from ._solvers import _make_solver
 from ._uncertainty import _uncertainty
+from ._views import _resolve_views, _stack_views
 
 
 def fit(
@@ -58,13 +59,25 @@ def fit(
     start_steps: int | None = None,
     noise: float | None = None,
     uncertainty: bool = True,
+    cameras: Sequence | None = None,
 ) -> FitResult:
     """Fit parameters of ``scene`` so that its render matches ``target``.
 
     **Arguments**
 
     - ``scene``: the start (a :class:`~raytrax.Scene`).
-    - ``target``: an ``(H, W, 3)`` linear image the size of the render.
+    - ``target``: an ``(H, W, 3)`` linear image the size of the render; or, to fit
+      several views of the scene at once, a list of such images (or a
+      ``(V, H, W, 3)`` array), one per entry of ``cameras``.
+    - ``cameras``: one camera per target: a :class:`raytrax.Camera`, a dict of
+      some of its fields (``position``, ``look_at``, ``up``, ``fov``; the
+      others are the scene's camera's) or ``None`` (the scene's camera).
+      Without ``cameras`` a list of targets is several images of the scene's
+      own view. The residuals of all views form one least-squares problem
+      (every pixel of every view weighted alike unless ``weights`` say
+      otherwise); the standard errors come from all views together. Every view
+      is rendered at the same size (``render_kwargs``). The scene's camera
+      cannot be fitted together with ``cameras``.
     - ``params``: what to fit: names of :func:`raytrax.parameters` (a string or a
       list, e.g. ``["light[0].position", "material.glass.ior"]``), a dict
       ``{name: start value}`` (``None`` keeps the scene's value), or a selector
@@ -81,7 +94,8 @@ def fit(
     - ``loss``: ``"mse"`` (weighted mean squared error), or a function
       ``loss(image, target) -> scalar`` (minimisers only).
     - ``weights``: per-pixel weights or a boolean mask, ``(H, W)``, ``(H, W, 1)``
-      or ``(H, W, 3)``.
+      or ``(H, W, 3)``; with several targets, one for every view or a list of
+      one per view (``None`` entries weigh a view's pixels 1).
     - ``regularizer``: ``regularizer(values) -> scalar`` added to the loss
       (``values``: the fitted parameters by name, in their bounded form), e.g. a
       smoothness prior on a texture; minimisers only. The loss history then
@@ -118,7 +132,7 @@ def fit(
     start_steps = _check_start_steps(start_steps, max_steps)
     if noise is not None and not (math.isfinite(float(noise)) and float(noise) > 0):
         raise ValueError(f"noise: expected a positive standard deviation, got {noise!r}")
-    problem, z0 = _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer)
+    problem, z0 = _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer, cameras)
 
     # -- start: loss, finiteness, effect of each parameter ----------------
     loss0 = _start_loss(problem, z0)
@@ -225,14 +239,19 @@ def _resolve_fitted(scene, params, bounds, default_bounds):
     return _Fitted(names, starts, by_path, lo, hi, maps)
 
 
-def _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer):
-    """Gather the scene, the checked target and weights, the render options and the
-    fitted parameters into a :class:`_Problem` (loss scale 1 for now); -> (problem,
-    the solver's unconstrained start point ``z0``)."""
+def _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer, cameras=None):
+    """Gather the scene, the checked target(s), weights and cameras, the render options
+    and the fitted parameters into a :class:`_Problem` (loss scale 1 for now); ->
+    (problem, the solver's unconstrained start point ``z0``)."""
     dtype = scene.dtype
     names = fitted.names
+    targets, cams, ws = _resolve_views(scene, target, cameras, weights, names)
     render_opts, key, shape = _render_opts(scene, render_kwargs)
-    target_a, weights_a = _target_and_weights(target, weights, shape, dtype)
+    if cams is None:
+        target_a, weights_a = _target_and_weights(targets[0], ws[0], shape, dtype)
+    else:
+        t, w = _stack_views(targets, ws, shape)
+        target_a, weights_a = jnp.asarray(t, dtype), jnp.asarray(w, dtype)
     # The solver works in float64 when JAX allows it (x64 on), whatever the
     # scene's dtype: quasi-Newton updates in float32 stall near the optimum.
     sdt = jnp.dtype(jnp.float64) if jax.config.read("jax_enable_x64") else jnp.dtype(dtype)
@@ -257,6 +276,7 @@ def _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regul
         render_opts=render_opts,
         loss_fn=loss_fn,
         reg_fn=regularizer,
+        cameras=None if cams is None else tuple(cams),
     )
     return problem, z0
 

@@ -55,8 +55,8 @@ class _Problem(eqx.Module):
 
     floats: Scene  # the scene's float leaves (None elsewhere)
     ints: _Frozen = eqx.field(static=True)  # and the rest
-    target: jax.Array  # (H, W, 3)
-    weights: jax.Array  # (H, W, 3), sums to 1
+    target: jax.Array  # (H, W, 3), or (V * H, W, 3): V views stacked along the height
+    weights: jax.Array  # shaped like target, sums to 1
     scale: jax.Array  # () 1 / loss at the start
     lo: dict  # name -> array (finite where the parameter has a lower bound)
     hi: dict
@@ -68,6 +68,12 @@ class _Problem(eqx.Module):
     render_opts: tuple = eqx.field(static=True)
     loss_fn: Callable | None = eqx.field(static=True)
     reg_fn: Callable | None = eqx.field(static=True, default=None)
+    cameras: tuple | None = None  # per view a camera (traced) or None (the scene's); None: one view
+
+    @property
+    def views(self) -> int:
+        """The number of views stacked in the image."""
+        return 1 if self.cameras is None else len(self.cameras)
 
     # z (unconstrained) -> parameter values
     def values(self, z):
@@ -96,8 +102,18 @@ class _Problem(eqx.Module):
         return jax.tree_util.tree_map(lambda x: jnp.asarray(x) if isinstance(x, np.ndarray) else x, scene)
 
     def image(self, z):
+        """The render at ``z``; with several views, one render per camera stacked along the height."""
         kw = dict(self.render_opts)
-        return render(self.scene_at(z), key=self.key, **kw)
+        scene = self.scene_at(z)
+        if self.cameras is None:
+            return render(scene, key=self.key, **kw)
+        return jnp.concatenate(
+            [
+                render(scene if cam is None else eqx.tree_at(lambda s: s.camera, scene, cam), key=self.key, **kw)
+                for cam in self.cameras
+            ],
+            axis=0,
+        )
 
     def raw_loss(self, img):
         if self.loss_fn is not None:

@@ -40,7 +40,7 @@ class _BlurredProblem(_Problem):
     rows renormalised at the image border). The matrices are traced arrays, so
     every blur level of one image size shares one compiled step."""
 
-    bh: jax.Array | None = None  # (H, H)
+    bh: jax.Array | None = None  # (H, H); block-diagonal over views
     bw: jax.Array | None = None  # (W, W)
 
     def blur(self, img):
@@ -77,9 +77,11 @@ def _blurred(problem: _Problem, level: float) -> _Problem:
     h, w = problem.target.shape[:2]
     sigma = level * w
     fields = {f: getattr(problem, f) for f in problem.__dataclass_fields__ if f not in ("bh", "bw")}
+    # several views stacked along the height: block-diagonal, each view blurred on its own
+    bh = np.kron(np.eye(problem.views), _gauss_matrix(h // problem.views, sigma))
     return _BlurredProblem(
         **fields,
-        bh=jnp.asarray(_gauss_matrix(h, sigma), problem.target.dtype),
+        bh=jnp.asarray(bh, problem.target.dtype),
         bw=jnp.asarray(_gauss_matrix(w, sigma), problem.target.dtype),
     )
 

@@ -180,19 +180,28 @@ def _render_opts(scene, render_kwargs):
 
 def _target_and_weights(target, weights, shape, dtype):
     """The target and the per-pixel weights (normalised to sum to 1) as ``(H, W, 3)`` arrays, checked."""
+    t, w = _check_target_and_weights(target, weights, shape)
+    return jnp.asarray(t, dtype), jnp.asarray(w / w.sum(), dtype)
+
+
+def _check_target_and_weights(target, weights, shape, view=""):
+    """One target and its weights, checked against the render's ``shape``: -> NumPy
+    ``(H, W, 3)`` target and (unnormalised) weights. ``view`` (``"[i]"``) names the
+    view in messages (``target[1]: ...``)."""
     t = np.asarray(target)
     if t.shape != shape:
         hint = ""
         if t.ndim == 3 and t.shape[2] == 3:
+            every = " (every view is rendered at this size)" if view else ""
             hint = (
                 f"; render the target at the scene's size or pass "
-                f"render_kwargs=dict(width={t.shape[1]}, height={t.shape[0]})"
+                f"render_kwargs=dict(width={t.shape[1]}, height={t.shape[0]}){every}"
             )
         raise ValueError(
-            f"target: shape {t.shape} does not match the rendered image's shape {shape} (height, width, 3){hint}"
+            f"target{view}: shape {t.shape} does not match the rendered image's shape {shape} (height, width, 3){hint}"
         )
     if not np.all(np.isfinite(t)):
-        raise ValueError(f"target: contains {int(np.sum(~np.isfinite(t)))} non-finite values (nan or inf)")
+        raise ValueError(f"target{view}: contains {int(np.sum(~np.isfinite(t)))} non-finite values (nan or inf)")
     if weights is None:
         w = np.ones(shape, np.float64)
     else:
@@ -204,12 +213,11 @@ def _target_and_weights(target, weights, shape, dtype):
             w = np.broadcast_to(w, shape)
         except ValueError:
             raise ValueError(
-                f"weights: shape {np.shape(weights)} does not fit the image's shape {shape}; "
+                f"weights{view}: shape {np.shape(weights)} does not fit the image's shape {shape}; "
                 f"expected (H, W), (H, W, 1) or (H, W, 3)"
             ) from None
         if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ValueError("weights: expected finite, non-negative weights")
+            raise ValueError(f"weights{view}: expected finite, non-negative weights")
         if not np.any(w > 0):
-            raise ValueError("weights: every weight is zero (an empty mask): nothing to fit")
-    w = w / w.sum()
-    return jnp.asarray(t, dtype), jnp.asarray(w, dtype)
+            raise ValueError(f"weights{view}: every weight is zero (an empty mask): nothing to fit")
+    return t, w
