@@ -29,10 +29,21 @@ class Events(NamedTuple):
 def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
     """The ray at each event's chain level, for image positions ``xy (2, E)``."""
     o, d = rays_through(scene.camera, xy, width, height)
-    for lv in range(ev.chain.shape[0] - 1):
-        o2, d2, _ = specular_step(P, ns, ev.chain[lv], ev.refr[lv], o, d)
+    if ev.chain.shape[0] <= 1:
+        return o, d
+
+    # One compiled level, scanned over the chain: its ray is materialised between
+    # levels (unrolled, XLA:CPU fuses each level's ray into every use of it, and the
+    # work grows geometrically with the depth).
+    def level(od, args):
+        ids, refr, lv = args
+        o, d = od
+        o2, d2, _ = specular_step(P, ns, ids, refr, o, d)
         go = lv < ev.level
-        o, d = V.vsel(go, o2, o), V.vsel(go, d2, d)
+        return (V.vsel(go, o2, o), V.vsel(go, d2, d)), None
+
+    lvs = jnp.arange(ev.chain.shape[0] - 1, dtype=ev.level.dtype)
+    (o, d), _ = jax.lax.scan(level, (o, d), (ev.chain[:-1], ev.refr[:-1], lvs))
     return o, d
 
 
