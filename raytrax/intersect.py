@@ -240,3 +240,33 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
 
             counts, _ = jax.lax.scan(body, counts, (P, valid, oh))
     return jax.lax.stop_gradient(counts)
+
+
+def occluded(kinds: list[Kind], o, d, tmax):
+    """For shadow rays ``o, d (3, n)`` and segment lengths ``tmax (n,)``: whether any
+    surface crosses the open segment ``(0, tmax)``, ``(n,)`` bool. The same as
+    ``occluder_counts(...) != 0`` in any material, without the per-material counts."""
+    n = o.shape[1]
+    ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
+    tmax = jax.lax.stop_gradient(tmax)[:, None]
+    ray2 = tuple(r[:, None] for r in ray)
+    blocked = jnp.zeros((n,), bool)
+    for k in kinds:
+        if k.accel is not None:
+            counts = B.crossings(k.accel, jnp.zeros_like(k.material), ray, tmax, 1)
+            blocked = blocked | (counts[:, 0] != 0)
+            continue
+        N = k.material.shape[0]
+        if N <= BLOCK:
+            hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
+            blocked = blocked | (jnp.max(hit, 1) > 0)
+        else:
+            P, valid, _ = _blocks(k.soa)
+
+            def body(c, blk):
+                Pb, vb = blk
+                hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
+                return c | (jnp.max(jnp.where(vb[None, :], hit, 0.0), 1) > 0), None
+
+            blocked, _ = jax.lax.scan(body, blocked, (P, valid))
+    return blocked

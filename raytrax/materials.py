@@ -200,9 +200,13 @@ class ShadingModel:
 
     name: str = ""
     fields: tuple = ()
+    # True: the shadow record is whether anything occludes (``shadow`` receives an
+    # ``(n,)`` bool from an any-hit query); False: per-material occluder counts ``(n, M)``.
+    occlusion_only: bool = False
 
     def shadow(self, counts):
-        """The shadow record of a light from occluder counts ``(n, M)``."""
+        """The shadow record of a light from occluder counts ``(n, M)`` (or, with
+        ``occlusion_only``, from whether the segment is occluded, ``(n,)`` bool)."""
         raise NotImplementedError
 
     def no_shadow(self, n: int, M: int, dtype):
@@ -267,12 +271,10 @@ class Physical(ShadingModel):
 
     name = "physical"
     fields = ()
+    occlusion_only = True
 
     def shadow(self, counts):
-        blocked = counts[:, 0] != 0
-        for m in range(1, counts.shape[1]):
-            blocked = blocked | (counts[:, m] != 0)
-        return blocked
+        return counts
 
     def no_shadow(self, n, M, dtype):
         return jnp.zeros((n,), bool)

@@ -28,12 +28,12 @@ import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
 from .. import vec as V
-from ..intersect import closest_hit, occluder_counts, offset_scale
+from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
 from ..materials import SHADING_MODELS, facing, interface, material_rows, refract
 from ..scene import Scene
 from ..textures import footprint_widths, hit_with_uv_shifts, needs_footprint, surface_color
-from .compaction import compact_map
+from . import compaction as C_
 from .options import RenderOptions
 
 # Reverse mode keeps only the inputs of each sub-tile's shading (and the values
@@ -106,6 +106,8 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
         M = mats.color.shape[0]
 
         def shadow(p0, dirn, tmax):
+            if model.occlusion_only:
+                return model.shadow(occluded(kinds, p0, dirn, tmax))
             return model.shadow(occluder_counts(kinds, p0, dirn, tmax, M))  # from (n, M) counts
 
         def no_shadow(p0, dirn, tmax):
@@ -143,79 +145,78 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
 
 
-def top_branches(kids, B, n):
-    """From ``2 B`` candidate children per sample keep the ``B`` heaviest.
-
-    ``kids`` holds (origin, direction, throughput) of the reflected and the
-    refracted children and the cone width, each with ray axis ``B * n``
-    (slot-major). Selection uses the channel-max throughput (no gradient).
-    """
-    po, rd, wr, pi, td, wt, cwh = kids
-
-    def two(a_r, a_t):
-        k = a_r.shape[0]
-        return jnp.concatenate([a_r.reshape(k, B, n), a_t.reshape(k, B, n)], 1)
-
-    co, cd, cwt = two(po, pi), two(rd, td), two(wr, wt)
-    ccw = jnp.concatenate([cwh.reshape(B, n), cwh.reshape(B, n)], 0)
-    score = jax.lax.stop_gradient(jnp.maximum(jnp.maximum(cwt[0], cwt[1]), cwt[2]))  # (2B, n)
-    # The B best of 2B by rank counting (lax.top_k's order: descending, ties to the
-    # lower index), elementwise: for small B cheaper on CPU than a top_k call.
-    rank = []
-    for j in range(2 * B):
-        r = jnp.zeros((n,), jnp.int32)
-        for k in range(2 * B):
-            if k != j:
-                r = r + (score[k] >= score[j] if k < j else score[k] > score[j]).astype(jnp.int32)
-        rank.append(r)
-    top = []
-    for r in range(B):
-        pick = jnp.zeros((n,), jnp.int32)
-        for j in range(2 * B):
-            pick = jnp.where(rank[j] == r, j, pick)
-        top.append(pick)
-    top = jnp.stack(top)  # (B, n)
-
-    def g(a):  # a (k, 2B, n) -> (k, B n): a select chain (elementwise, also in reverse mode)
-        out = jnp.broadcast_to(a[:, :1], (a.shape[0], B, n))
-        for j in range(1, 2 * B):
-            out = jnp.where(top[None] == j, a[:, j : j + 1], out)
-        return out.reshape(a.shape[0], -1)
-
-    return g(co), g(cd), g(cwt), g(ccw[None])[0]
-
-
 def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
-    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)`` (``sel (n,)``: see :func:`_shade`).
+    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)`` (``sel (n,)``: see :func:`shade`).
 
-    Every depth runs the same compiled body (a ``lax.scan`` over depth) on a
-    fixed buffer of ``branches`` rays per camera sample; slots without weight
-    are compacted away by :func:`_compact_map`.
+    A wavefront over depth (a ``lax.scan``; every depth runs the same compiled
+    body): the live samples form a prefix of a ray queue
+    (:mod:`~raytrax.renderer.compaction`), shaded in sub-tiles of
+    ``opts.subtile`` rays (a ``lax.scan`` over sub-tiles, each under a
+    ``lax.cond`` that skips it past the live count). Each sample keeps the
+    ``branches`` heaviest of its rays' reflected and refracted children.
     """
     st = opts.settings
     B = st.branches
     n = o.shape[1]
     dt = o.dtype
-    pad = lambda a, fill: jnp.concatenate([a] + [jnp.full_like(a, fill)] * (B - 1), -1)
-    w = pad(jnp.ones_like(o), 0.0)
-    state = (pad(o, 0.0), pad(d, 0.0), w, jnp.zeros((B * n,), dt))
-    # A ray's children stay in its sample's column of the (B, n) slots: ``sel`` is
-    # the same for all of them.
-    sel_b = None if sel is None else jnp.tile(sel, B)
+    m = max(B, min(opts.subtile, B * n) // B * B)  # rays per sub-tile, whole samples
+    S = -(-n // (m // B))  # sub-tiles: enough for n samples of B rays (and n camera rays)
+    # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
+    # of one (S, 10, m) buffer; its sample's id in an (S, m) buffer (n: none).
+    rays0 = jnp.concatenate([o, d, jnp.ones_like(o), jnp.zeros((1, n), dt)])
+    state = (C_.to_tiles(rays0, S, m, 0.0), C_.to_tiles(jnp.arange(n, dtype=jnp.int32), S, m, n))
+    empty = (jnp.zeros((S, 10, m), dt), jnp.full((S, m), n, jnp.int32))
 
-    def body(carry, depth):
-        (o_, d_, w_, cw_), radiance = carry
+    @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
+    def shade_ckpt(last, a, b, c, e, *f):
+        return shade(scene, kinds, a, b, c, e, spread, opts, last, *f)
+
+    def depth_body(carry, depth):
+        cur, count, radiance = carry
         last = depth == st.max_depth
 
-        @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
-        def fn(a, b, c, e, *f):
-            return shade(scene, kinds, a, b, c, e, spread, opts, last, *f)
+        def tile_body(tc, x):
+            j, rays, sid_t = x
 
-        active = jnp.any(w_ > 0, 0)
-        args = (o_, d_, w_, cw_) + (() if sel is None else (sel_b,))
-        contrib, kids = compact_map(fn, args, active, opts.subtile)
-        radiance = radiance + contrib.reshape(3, B, n).sum(1)
-        return (top_branches(kids, B, n), radiance), None
+            def live(tc):
+                nxt, cnt, rad = tc
+                extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
+                contrib, kids = shade_ckpt(last, rays[0:3], rays[3:6], rays[6:9], rays[9], *extra)
 
-    (_, radiance), _ = jax.lax.scan(body, (state, jnp.zeros_like(o)), jnp.arange(st.max_depth + 1))
+                def write(g, children):  # g rays per sample in this sub-tile (1 at depth 0, else B)
+                    k = m // g
+                    sids = sid_t[:k]  # the sample of each (slot-major: slot 0 first)
+                    rad_out = rad.at[:, sids].add(contrib.reshape(3, g, k).sum(1), mode="drop", unique_indices=True)
+                    if not children:  # the last depth: its children are not traced
+                        return nxt, cnt, rad_out
+                    po, rd, wr, pi, td, wt, cwh = kids
+                    # (10, 2g, k) candidates: the reflected children of the g slots, then the refracted
+                    cands = jnp.concatenate(
+                        [
+                            jnp.concatenate([a.reshape(-1, g, k) for a in (po, rd, wr, cwh[None])]),
+                            jnp.concatenate([a.reshape(-1, g, k) for a in (pi, td, wt, cwh[None])]),
+                        ],
+                        1,
+                    )
+                    kept = C_.pick(cands, C_.top_children(cands[6:9], B))  # (10, B, k)
+                    alive = jnp.any(kept[6:9] > 0, (0, 1)) & (sids < n)
+                    q = cnt + jnp.cumsum(alive, dtype=jnp.int32) - 1
+                    out = C_.write_queue(nxt, q, alive, kept, jnp.broadcast_to(sids, (B, k)))
+                    return out, cnt + jnp.sum(alive, dtype=jnp.int32), rad_out
+
+                # Depth 0 has one ray per sample; the last depth only adds radiance.
+                gs = (1,) if B == 1 else (1, B)
+                fns = [functools.partial(write, g, c) for c in (True, False) for g in gs]
+                branch = jnp.where(last, len(gs), 0) + (jnp.where(depth == 0, 0, 1) if B > 1 else 0)
+                return jax.lax.switch(branch, fns)
+
+            return jax.lax.cond(C_.any_in_batch(j * m < count), live, lambda tc: tc, tc), None
+
+        init = (empty, jnp.zeros((), jnp.int32), radiance)
+        (nxt, cnt, radiance), _ = jax.lax.scan(tile_body, init, (jnp.arange(S, dtype=jnp.int32),) + cur)
+        return (nxt, cnt * B, radiance), None
+
+    (_, _, radiance), _ = jax.lax.scan(
+        depth_body, (state, jnp.asarray(n, jnp.int32), jnp.zeros_like(o)), jnp.arange(st.max_depth + 1)
+    )
     return radiance
