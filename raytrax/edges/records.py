@@ -17,6 +17,8 @@ from ..materials import refracts_dominantly
 from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
 
+SUB_MIN = 128  # the least rays per sub-batch of a records level
+
 
 def search(scene, kinds, off, o, d, tmax=None):
     """Global id (-1: none) and distance of the first primitive along rays ``o, d``
@@ -112,7 +114,7 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
             # the shadow segment crosses.
             first, last = (object_key(P, ns, x) for x in occluders(scene, kinds, off, P, p, hit))
         else:
-            first = last = jnp.zeros((0, M), jnp.int32)
+            first = last = jnp.zeros((0, o.shape[1]), jnp.int32)
         mat = P.mat[jnp.clip(gid, 0, P.mat.shape[0] - 1)]
         T, R = P.trans[mat], P.refl[mat]
         cont = hit & ((T > 0) | (R > 0))
@@ -130,11 +132,32 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
             jnp.zeros((M,), jnp.int32),
         )
 
-    def level(carry, _):
-        return jax.lax.cond(jnp.any(carry[2]), live, dead, *carry)
+    # Per level, the rays whose chain goes on are packed at the front and searched in
+    # sub-batches of ``sb``; the sub-batches past the last of them are skipped (most
+    # chains end at the first diffuse hit).
+    sb = max(1, min(M, max(SUB_MIN, M // 8)))
+    nsb = -(-M // sb)
 
-    # One compiled level, scanned over the chain (levels after the last mirror or glass
-    # hit of every ray cost nothing).
+    def level(carry, _):
+        o, d, alive = carry
+        cnt = jnp.sum(alive)
+        (order,) = jnp.nonzero(alive, size=nsb * sb, fill_value=M)
+        init = ((o, d, jnp.zeros_like(alive)), dead(o, d, alive)[1])
+
+        def sub(j, acc):
+            pos = j * sb + jnp.arange(sb)
+            idx = jnp.minimum(order[pos], M - 1)
+            wi = jnp.where(pos < cnt, order[pos], M)  # past the live rays: dropped
+
+            def run(acc):
+                (o2, d2, c2), res = live(o[:, idx], d[:, idx], pos < cnt)
+                return jax.tree_util.tree_map(lambda a, v: a.at[..., wi].set(v, mode="drop"), acc, ((o2, d2, c2), res))
+
+            return jax.lax.cond(j * sb < cnt, run, lambda acc: acc, acc)
+
+        return jax.lax.fori_loop(0, nsb, sub, init)
+
+    # One compiled level, scanned over the chain.
     _, out = jax.lax.scan(level, (o, d, jnp.ones((M,), bool)), None, length=depth)
     return Records(*out)
 

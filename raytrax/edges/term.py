@@ -258,21 +258,24 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         ev2 = cat(ev, ev)
         sgn2 = jnp.concatenate([sgn, sgn])
 
+        def g1(x):
+            return sgn * G(ev, x)
+
         def g2(x):
             return sgn2 * G(ev2, x)
 
-        # Bisection on the doubled batch (both copies of each bracket; the second is
+        # Bisection on the events; then both copies of each bracket (the second is
         # differentiated along y below, and below the two copies follow the edge to
         # either side).
-        xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
-
         def bisect(_, lohi):
             lo, hi = lohi
             mid = 0.5 * (lo + hi)
-            neg = g2(xa2 + mid[None] * (xb2 - xa2)) <= 0  # pyright: ignore
+            neg = g1(xa + mid[None] * (xb - xa)) <= 0  # pyright: ignore
             return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
 
-        lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn2), jnp.ones_like(sgn2)))
+        lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn), jnp.ones_like(sgn)))
+        lo, hi = jnp.concatenate([lo, lo]), jnp.concatenate([hi, hi])
+        xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
         xs2 = xa2 + (0.5 * (lo + hi))[None] * (xb2 - xa2)
         tang = jnp.concatenate([jnp.zeros_like(xa).at[0].set(1.0), jnp.zeros_like(xa).at[1].set(1.0)], 1)
         _, gxy = jax.jvp(g2, (xs2,), (tang,))
@@ -315,86 +318,139 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         def dup(x):
             return jnp.concatenate([x, x], -1)
 
-        along2, tdir2, xs2b, u2, ga2 = (dup(x) for x in (along, tdir, xs, u, ga))
         sided = jnp.concatenate([-jnp.ones_like(sgn), jnp.ones_like(sgn)]) * h
 
-        def on_edge(x):
-            """Follow the edge from ``x`` along the pair direction (chord-Newton steps
-            in one loop); returns the last point evaluated, whether ``g`` vanishes
-            there, and its feature."""
+        # Per side (2E: each event's piece before and after its edge point), gathered
+        # in batches of ``m`` sides: steps 0 and 1 run on every side, the bisection
+        # (steps 2...) only on the sides where step 1 failed, packed at the front.
+        side = {
+            "x": dup(xs),
+            "t": dup(tdir),
+            "u": dup(u),
+            "a": dup(along),
+            "ga": dup(ga),
+            "s": sgn2,
+            "ev": ev2,
+            "lv": dup(c["level"]),
+            "k": dup(c["k"]),
+            "vis": dup(vis),
+        }
+        m = max(1, E // 2)
+        okd = dup(ok)
+        nfull = -(-(2 * E) // m)
+
+        def follow(sd, mid):
+            """Follow the edge from ``x + mid t`` along the pair direction (chord-Newton
+            steps in one loop); returns the last point evaluated, whether ``g`` vanishes
+            there, its feature, and the records just beside it (minus, plus)."""
+            a, ga = sd["a"], sd["ga"]
 
             def newton(_, st):
                 x, _, _, _ = st
-                gv, f = G(ev2, x, feature=True)
-                gv = sgn2 * gv
-                return x - V.safe_div(gv, ga2)[None] * along2, x, jnp.abs(gv) <= 0.05 * h * jnp.abs(ga2), f
+                gv, f = G(sd["ev"], x, feature=True)
+                gv = sd["s"] * gv
+                return x - V.safe_div(gv, ga)[None] * a, x, jnp.abs(gv) <= 0.05 * h * jnp.abs(ga), f
 
-            _, x1, conv, f = jax.lax.fori_loop(
-                0, NEWTON_STEPS + 1, newton, (x, x, jnp.zeros(sgn2.shape, bool), jnp.zeros(sgn2.shape, jnp.int32))
-            )
-            return x1, conv, f
+            z = jnp.zeros(ga.shape, bool)
+            x0 = sd["x"] + mid[None] * sd["t"]
+            _, x1, conv, f = jax.lax.fori_loop(0, NEWTON_STEPS + 1, newton, (x0, x0, z, jnp.zeros(ga.shape, jnp.int32)))
+            r = rec_at(jnp.concatenate([x1 - sd["u"], x1 + sd["u"]], 1))  # minus side, plus side
+            return x1, conv, f, r
 
-        def seen(x, r):
+        def seen(sd, x, r):
             """Does the pair of grid samples around ``x`` (a point of the edge on a
             sample row or column) see the same on either side as the probes there
             (records ``r``)? If not (it straddles another edge too), that row has no
             crossing of this edge, and the rows beside it cover its piece."""
+            a = sd["a"]
+            k = x.shape[1]
             t = x * n - 0.5  # grid coordinates
-            ca = jnp.floor(jnp.where(along2 > 0, t, jnp.round(t))).astype(jnp.int32)
+            ca = jnp.floor(jnp.where(a > 0, t, jnp.round(t))).astype(jnp.int32)
             inside = (
                 (ca[0] >= 0)
                 & (ca[1] >= 0)
-                & (ca[0] + along2[0].astype(jnp.int32) < Gw)
-                & (ca[1] + along2[1].astype(jnp.int32) < Gh)
+                & (ca[0] + a[0].astype(jnp.int32) < Gw)
+                & (ca[1] + a[1].astype(jnp.int32) < Gh)
             )
             ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
-            ib = jnp.clip(ia + jnp.where(along2[0] > 0, 1, Gw), 0, S - 1)
+            ib = jnp.clip(ia + jnp.where(a[0] > 0, 1, Gw), 0, S - 1)
             at = jax.tree_util.tree_map(lambda v: v[..., jnp.concatenate([ia, ib])], R)
             # Compared on what makes this event: the chain prefix, the hit at its
             # level and, for a shadow edge, its light's occluders there.
-            lv4 = jnp.tile(c["level"], 4)
-            same = jnp.ones(lv4.shape, bool)
+            lv2 = jnp.tile(sd["lv"], 2)
+            same = jnp.ones(lv2.shape, bool)
             for q in range(D):
-                same = same & ((q > lv4) | (at.hit[q] == r.hit[q])) & ((q >= lv4) | (at.refr[q] == r.refr[q]))
+                same = same & ((q > lv2) | (at.hit[q] == r.hit[q])) & ((q >= lv2) | (at.refr[q] == r.refr[q]))
             if L:
-                k4, ar = jnp.tile(c["k"], 4), jnp.arange(4 * E)
+                k2, ar = jnp.tile(sd["k"], 2), jnp.arange(2 * k)
                 same = same & (
-                    jnp.tile(vis, 4)
-                    | ((at.first[lv4, k4, ar] == r.first[lv4, k4, ar]) & (at.last[lv4, k4, ar] == r.last[lv4, k4, ar]))
+                    jnp.tile(sd["vis"], 2)
+                    | ((at.first[lv2, k2, ar] == r.first[lv2, k2, ar]) & (at.last[lv2, k2, ar] == r.last[lv2, k2, ar]))
                 )
-            return ~inside | (same[: 2 * E] & same[2 * E :])
+            return ~inside | (same[:k] & same[k:])
 
-        def end_step(i, st):
-            lo, hi, full, lost, ref, feat = st
-            mid = jnp.where(i == 0, 0.0, jnp.where(i == 1, hi, 0.5 * (lo + hi)))
-            x, conv, f = on_edge(xs2b + mid[None] * tdir2)
-            r = rec_at(jnp.concatenate([x - u2, x + u2], 1))  # minus side, plus side (each 2E)
-            ref = jax.tree_util.tree_map(lambda new, old: jnp.where(i == 0, new, old), r, ref)
-            feat = jnp.where(i == 0, f, feat)
-            v = (
-                conv
-                & (f == feat)
-                & records_equal(records_slice(r, slice(0, 2 * E)), records_slice(ref, slice(0, 2 * E)))
-                & records_equal(records_slice(r, slice(2 * E, 4 * E)), records_slice(ref, slice(2 * E, 4 * E)))
+        def item(i, st):
+            """Work item ``i``: steps 0 and 1 on batch ``i % nfull`` of all sides (``i <
+            2 nfull``), then bisection step ``(i - 2 nfull) % (END_STEPS)`` on batch
+            ``(i - 2 nfull) // END_STEPS`` of the sides that still need it."""
+            lo, hi, full, lost, ref_m, ref_p, feat = st
+            first = i < 2 * nfull
+            step = jnp.where(first, i // nfull, 2 + (i - 2 * nfull) % END_STEPS)
+            b = jnp.where(first, i % nfull, (i - 2 * nfull) // END_STEPS)
+            need = ~(full | lost) & okd  # a crossing that adds nothing needs no piece
+            (order,) = jnp.nonzero(need, size=2 * E, fill_value=0)
+            cnt = jnp.sum(need)
+            pos = b * m + jnp.arange(m)
+            idx = jnp.where(first, jnp.minimum(pos, 2 * E - 1), order[jnp.minimum(pos, 2 * E - 1)])
+            valid = jnp.where(first, pos < 2 * E, pos < cnt)
+
+            def run(st):
+                lo, hi, full, lost, ref_m, ref_p, feat = st
+                sd = jax.tree_util.tree_map(lambda v: v[..., idx], side)
+                lo_i, hi_i = lo[idx], hi[idx]
+                mid = jnp.where(step == 0, 0.0, jnp.where(step == 1, hi_i, 0.5 * (lo_i + hi_i)))
+                x, conv, f, r = follow(sd, mid)
+                rm, rp = records_slice(r, slice(0, m)), records_slice(r, slice(m, 2 * m))
+                old_m = jax.tree_util.tree_map(lambda v: v[..., idx], ref_m)
+                old_p = jax.tree_util.tree_map(lambda v: v[..., idx], ref_p)
+                f_ref = jnp.where(step == 0, f, feat[idx])
+                v = conv & (f == f_ref) & records_equal(rm, old_m) & records_equal(rp, old_p)
+                nb = seen(sd, x, r)
+                # Only the batch's real slots are written (padding slots are dropped).
+                wi = jnp.where(valid, idx, 2 * E)
+
+                def put(arr, new):
+                    return arr.at[..., wi].set(new, mode="drop")
+
+                s0, s1, sb = step == 0, step == 1, step > 1
+                ref_m = jax.tree_util.tree_map(lambda a, nw, od: put(a, jnp.where(s0, nw, od)), ref_m, rm, old_m)
+                ref_p = jax.tree_util.tree_map(lambda a, nw, od: put(a, jnp.where(s0, nw, od)), ref_p, rp, old_p)
+                feat = put(feat, jnp.where(s0, f, feat[idx]))
+                full = put(full, jnp.where(s1, v & nb, full[idx]))
+                lost = put(lost, jnp.where(s1, v & ~nb, lost[idx]))
+                lo = put(lo, jnp.where(sb & v, mid, lo_i))
+                hi = put(hi, jnp.where(sb & ~v, mid, hi_i))
+                return lo, hi, full, lost, ref_m, ref_p, feat
+
+            return jax.lax.cond(jnp.any(valid), run, lambda st: st, st)
+
+        def ref0(k):
+            return Records(
+                jnp.zeros((D, k), jnp.int32),
+                jnp.zeros((D, k), bool),
+                jnp.zeros((D, L, k), jnp.int32),
+                jnp.zeros((D, L, k), jnp.int32),
+                jnp.zeros((D, k), jnp.int32),
             )
-            nb = seen(x, r)
-            full = jnp.where(i == 1, v & nb, full)
-            lost = jnp.where(i == 1, v & ~nb, lost)
-            lo = jnp.where((i > 1) & v, mid, lo)
-            hi = jnp.where((i > 1) & ~v, mid, hi)
-            return lo, hi, full, lost, ref, feat
 
-        ref0 = Records(
-            jnp.zeros((D, 4 * E), jnp.int32),
-            jnp.zeros((D, 4 * E), bool),
-            jnp.zeros((D, L, 4 * E), jnp.int32),
-            jnp.zeros((D, L, 4 * E), jnp.int32),
-            jnp.zeros((D, 4 * E), jnp.int32),
-        )
         no = jnp.zeros(sided.shape, bool)
-        lo, hi, full, lost, ref, _ = jax.lax.fori_loop(
-            0, END_STEPS + 2, end_step, (jnp.zeros_like(sided), sided, no, no, ref0, jnp.zeros(sided.shape, jnp.int32))
+        lo, hi, full, lost, ref_m, ref_p, _ = jax.lax.fori_loop(
+            0,
+            2 * nfull + END_STEPS * nfull,
+            item,
+            (jnp.zeros_like(sided), sided, no, no, ref0(2 * E), ref0(2 * E), jnp.zeros(sided.shape, jnp.int32)),
         )
+        ref = Records(*(jnp.concatenate([a, b], -1) for a, b in zip(ref_m, ref_p, strict=True)))
         r_m, r_p = records_slice(ref, slice(0, E)), records_slice(ref, slice(2 * E, 3 * E))
         lvl = c["level"]
         pre_m = pre_p = jnp.ones_like(ok)
