@@ -2,6 +2,7 @@
 
     python benchmarks/bench_edges.py                      # accuracy (16 x 12) and cost (64 x 48), ~10 min
     python benchmarks/bench_edges.py --no-accuracy --cost-size 128x96
+    python benchmarks/bench_edges.py --no-accuracy --no-cost --calls glass,edge_occluders,edge_sphere --calls-size 64x48
 
 Scene: a checkered floor under two lights with a sphere, a lifted rotated box and
 a tetrahedron (classic shading, depth 1, float64). The scalar differentiated is
@@ -17,6 +18,13 @@ loss sees).
   The weights ``R`` are smooth over the image: a per-pixel random weight makes
   the loss kink wherever an edge crosses a pixel boundary, and then no finite
   step converges;
+* calls: ``value_and_grad`` of an image loss, plain AD against
+  ``edge_gradients=True``, each in a fresh process: the first call (compilation
+  included), the median of 3 further calls and the process's peak resident memory;
+  on ``glass`` (a glass ball, ior 1.5, over a 10 x 10 checker of thin boxes with
+  five small balls behind it, one point light, depth 6: the loss is the MSE against
+  the image at ior 1.5, differentiated with respect to the ior at 1.30) and on the
+  scenes ``edge_occluders`` and ``edge_sphere`` (the loss above);
 * cost: compile time, steady time (median of 3) and XLA's temporary memory
   (``compiled.memory_analysis()``) of ``value_and_grad`` with and without edge
   gradients at the same spp, and of the forward render. Ratios are what to
@@ -170,20 +178,119 @@ def cost(a):
     )
 
 
+def glass_scene(width, height, spp, ior, depth=6):
+    """A glass ball (``material.glass.ior``) over a 10 x 10 checker of thin boxes, five
+    small balls behind it, one point light (107 objects; the scene of
+    examples/fit_glass_over_geometry.py with the balls and depth 6)."""
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=depth, background=(0.05, 0.05, 0.08))
+    b.camera(position=(0, 4.0, 5.5), look_at=(0, 0, 0), fov=40)
+    b.light((3.0, 6.0, 2.0), intensity=(60, 60, 60))
+    b.material("floor", color=(0.7, 0.7, 0.7))
+    b.material("red", color=(0.8, 0.15, 0.1))
+    b.material("blue", color=(0.1, 0.2, 0.8))
+    b.material("glass", color=(0, 0, 0), transparency=1.0, ior=ior)
+    b.material("ball", color=(0.8, 0.8, 0.2))
+    b.plane((0, -0.05, 0), (0, 1, 0), "floor")
+    n, s = 10, 0.5
+    for i in range(n):
+        for j in range(n):
+            x0, z0 = (i - n / 2) * s, (j - n / 2) * s
+            b.box((x0, 0.0, z0), (x0 + s, 0.08, z0 + s), "red" if (i + j) % 2 else "blue")
+    b.sphere((0, 0.9, 0.0), 0.8, "glass")
+    for k in range(5):
+        b.sphere((-1.6 + 0.8 * k, 0.35, -1.6), 0.25, "ball")
+    return b.build()
+
+
+def one_call(name, W, H, spp, edge):
+    """First and steady time of ``value_and_grad`` and peak RSS, in this process (a child)."""
+    import resource
+
+    if name == "glass":
+        sc = glass_scene(W, H, spp, 1.3)
+        target = rt.render(glass_scene(W, H, spp, 1.5))
+
+        def loss_glass(x):
+            s = rt.with_parameters(sc, {"material.glass.ior": x})
+            return jnp.mean((rt.render(s, edge_gradients=edge) - target) ** 2)
+
+        loss, q0 = loss_glass, jnp.asarray(1.3, sc.dtype)
+    else:
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", f"{name}.toml")
+        sc = rt.load_scene(path, dtype=jnp.float32).replace_settings(width=W, height=H, spp=spp)
+        lo, q0 = make_loss(sc)
+
+        def loss_scene(q):
+            return lo(q, edge_gradients=edge)
+
+        loss = loss_scene
+
+    f = jax.jit(jax.value_and_grad(loss))
+    t = time.perf_counter()
+    jax.block_until_ready(f(q0))
+    first = time.perf_counter() - t
+    times = []
+    for _ in range(3):
+        t = time.perf_counter()
+        v, g = jax.block_until_ready(f(q0))
+        times.append(time.perf_counter() - t)
+    g = float(g) if name == "glass" else float(np.abs(flat(g)).sum())
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return first, statistics.median(times), rss, g
+
+
+def calls(a):
+    import json
+    import subprocess
+    import sys
+
+    W, H = (int(x) for x in a.calls_size.split("x"))
+    print(f"\nvalue_and_grad, {W} x {H}, spp {a.calls_spp}, float32, each in a fresh process\n")
+    print(
+        "| scene | plain first (s) | edge first (s) | ratio | plain steady (s) | edge steady (s) | ratio "
+        "| plain peak RSS (GiB) | edge peak RSS (GiB) | plain grad | edge grad |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for name in a.calls.split(","):
+        out = {}
+        for edge in (False, True):
+            cmd = [sys.executable, os.path.abspath(__file__), "--one", f"{name},{W},{H},{a.calls_spp},{int(edge)}"]
+            res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+            out[edge] = json.loads(res.stdout.strip().splitlines()[-1])
+        p, e = out[False], out[True]
+        print(
+            f"| {name} | {p[0]:.1f} | {e[0]:.1f} | {e[0] / p[0]:.2f} | {p[1]:.2f} | {e[1]:.2f} | {e[1] / p[1]:.2f} "
+            f"| {p[2]:.2f} | {e[2]:.2f} | {p[3]:+.5f} | {e[3]:+.5f} |",
+            flush=True,
+        )
+
+
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--no-accuracy", action="store_true")
     ap.add_argument("--no-cost", action="store_true")
     ap.add_argument("--ref-spp", type=int, default=9216)
     ap.add_argument("--step", type=float, default=0.015)
     ap.add_argument("--cost-size", default="64x48")
     ap.add_argument("--cost-spp", type=int, default=16)
+    ap.add_argument("--calls", default="", help="comma-separated: glass and/or scenes/*.toml names")
+    ap.add_argument("--calls-size", default="64x48")
+    ap.add_argument("--calls-spp", type=int, default=16)
+    ap.add_argument("--one", default="", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.one:
+        import json
+
+        name, W, H, spp, edge = a.one.split(",")
+        print(json.dumps(one_call(name, int(W), int(H), int(spp), bool(int(edge)))))
+        return
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}")
     if not a.no_accuracy:
         accuracy(a)
     if not a.no_cost:
         cost(a)
+    if a.calls:
+        calls(a)
 
 
 if __name__ == "__main__":
