@@ -106,6 +106,8 @@ def test_selector_progress_and_step_budget(capsys):
     res = rt.fit(start, target, lambda s: s.lights.position, max_steps=40, check=False)
     out = capsys.readouterr().out
     assert "step    0  loss" in out and "lights.position=" in out and "fit: converged" in out
+    # Light positions move shadow edges: the fit says in one line that its gradient leaves them out.
+    assert "rt.fit: plain AD gradients; the edges that lights.position move" in out
     assert list(res.params) == ["lights.position"]
     np.testing.assert_allclose(
         res.params["lights.position"], np.asarray(lights.TRUE_LIGHTS), atol=0.01 * lights.SCENE_SIZE

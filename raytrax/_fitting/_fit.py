@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -22,6 +23,7 @@ import numpy as np
 import optimistix as optx
 
 from ..scene import Scene
+from ..shapes import KINDS
 from ._compiled import _effect, _init, _step
 from ._problem import _Frozen, _is_float_array, _Problem
 from ._report import _fmt, _Reporter
@@ -133,6 +135,10 @@ def fit(
     if noise is not None and not (math.isfinite(float(noise)) and float(noise) > 0):
         raise ValueError(f"noise: expected a positive standard deviation, got {noise!r}")
     problem, z0 = _build_problem(scene, target, weights, render_kwargs, fitted, loss_fn, regularizer, cameras)
+    if progress:
+        note = _gradient_note(problem.names, render_kwargs)
+        if note:
+            print(note)
 
     # -- start: loss, finiteness, effect of each parameter ----------------
     loss0 = _start_loss(problem, z0)
@@ -177,6 +183,34 @@ def fit(
 # ---------------------------------------------------------------------------
 # The steps of fit, in order
 # ---------------------------------------------------------------------------
+# Parameters whose change moves an edge in the image (a silhouette, a shadow
+# boundary, what is seen through glass): geometry, the camera, light positions
+# and directions, refractive indices; by name (``object[0].center``) or by
+# selector path (``spheres.center``). Colours and intensities do not.
+_MOVES_EDGES = re.compile(
+    r"^(camera\.|object\[|\w*lights?(\[\d+\])?\.(position|direction)$|material\.[^.]+\.ior$|materials\.ior$)"
+)
+
+
+def _moves_edges(name: str) -> bool:
+    return bool(_MOVES_EDGES.match(name)) or name.split(".")[0] in {k.field for k in KINDS}
+
+
+def _gradient_note(names, render_kwargs) -> str | None:
+    """One line on which gradient the fit uses when fitted parameters move edges
+    and the caller did not choose (``render_kwargs["edge_gradients"]``)."""
+    if render_kwargs and "edge_gradients" in render_kwargs:
+        return None
+    moving = [nm for nm in names if _moves_edges(nm)]
+    if not moving:
+        return None
+    return (
+        f"rt.fit: plain AD gradients; the edges that {', '.join(moving)} move are not in the derivative "
+        "(the default search compares losses, so it still finds the basin). "
+        "render_kwargs=dict(edge_gradients=True) adds them at several times the cost (docs/gradients.md)."
+    )
+
+
 def _check_arguments(scene, max_steps, progress, patience, rtol, atol):
     """Check the scene and the plain options; -> the solver's ``(rtol, atol)``
     (defaults ``1e-5`` for a float32 scene, ``1e-8`` for float64)."""
