@@ -18,7 +18,7 @@ class RenderOptions:
       of :func:`raytrax.render` applied (size, spp, depth, shading...).
     - ``tile_rays``: camera rays per tile (``lax.map`` over tiles); reverse mode
       holds one tile's rays at a time, so memory scales with it.
-    - ``subtile``: rays per sub-tile of the dead-ray compaction at depth >= 1.
+    - ``subtile``: rays per sub-tile of the ray queue (the unit of skipping dead rays).
     - ``jitter``: samples are jittered inside their strata (a PRNG key was given).
     - ``devices``: number of devices the tiles are sharded over.
     """

@@ -13,9 +13,10 @@ Inside a tile, each camera sample carries up to ``branches`` specular branches:
 * the ``2 * b`` children of a sample are cut back to its ``branches`` heaviest
   (``lax.top_k`` on the channel-max throughput), so the work per depth is
   bounded by ``branches`` rays per sample and never grows as ``2^depth``;
-* at depth >= 1 the live rays (non-zero throughput) are compacted to the front
-  and processed in sub-tiles, and a sub-tile with no live ray is skipped
-  (``lax.cond``): paths that ended at a diffuse surface cost nothing more;
+* the samples with a live child (non-zero throughput) are written, in order,
+  to the front of the next depth's ray queue (:mod:`~raytrax.renderer.compaction`),
+  which is processed in sub-tiles; the sub-tiles past the live count are
+  skipped (``lax.cond``): paths that ended at a diffuse surface cost nothing more;
 * at depth ``max_depth`` the specular children take the background instead.
 """
 
@@ -111,15 +112,26 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
             return model.shadow(occluder_counts(kinds, p0, dirn, tmax, M))  # from (n, M) counts
 
         def no_shadow(p0, dirn, tmax):
-            return model.no_shadow(n, M, dt)
+            return model.no_shadow(p0.shape[1], M, dt)
 
+        # The shadow rays of all lights as one query (one compiled search, larger
+        # kernels), under a cond: skipped when no ray faces any light, and the result
+        # is materialised once (XLA:CPU would otherwise fuse the occlusion tests into
+        # each colour channel's shading).
+        cat = (lambda xs: xs[0]) if L == 1 else (lambda xs: jnp.concatenate(xs, -1))
+        any_lit = functools.reduce(jnp.logical_or, lit)
+        sh_all = jax.lax.cond(
+            jnp.any(any_lit),
+            shadow,
+            no_shadow,
+            cat([p_out] * L),
+            cat(ldir),
+            cat([x * (1.0 - 1e-6) for x in dist]),
+        )
+        sh_all = checkpoint_name(sh_all, "raytrax_shadow")
         acc = jnp.zeros_like(o)
         for l in range(L):
-            # Shadow rays of one light, under a cond: skipped when no ray faces the
-            # light, and the result is materialised once (XLA:CPU would otherwise
-            # fuse the occlusion tests into each colour channel's shading).
-            sh = jax.lax.cond(jnp.any(lit[l]), shadow, no_shadow, p_out, ldir[l], dist[l] * (1.0 - 1e-6))
-            sh = checkpoint_name(sh, "raytrax_shadow")
+            sh = sh_all if L == 1 else sh_all[l * n : (l + 1) * n]
             smp = samples[l]
             acc = model.add_light(
                 acc, rows, color, mats.transparency, sh, smp.strength, smp.falloff, cosl[l], ldir[l], n_s, d, lit[l]
