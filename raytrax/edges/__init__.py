@@ -56,7 +56,8 @@ Method (analytic edge functions found between neighbouring samples; see
    (a corner, a T-junction with another edge, the end of a shadow on another
    object), the piece is cut there: the edge is followed to the neighbouring row
    (Newton's method on ``g``) and the records on both sides of it are compared
-   with those at ``x_s``; if they differ, bisection finds where. The records
+   with those at ``x_s``; if they differ, bisection finds where (run only on the
+   pieces where that comparison failed, packed together). The records
    include the hard procedural pattern (checker or stripes colour) at each hit,
    so a piece is also cut where a pattern edge meets it. Where the neighbouring
    row's pair of samples straddles another edge as well (a shadow edge running
