@@ -115,7 +115,17 @@ straddle two edges closer together than the sample spacing.
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import Prims, build_prims, first_t, id_offsets, kind_ids, miss
 from .records import Records, object_key, records
-from .term import BISECTION_STEPS, CHUNK, END_STEPS, NEWTON_STEPS, QUAD_NODES, QUAD_SAMPLES, EdgeOptions, edge_term
+from .term import (
+    BISECTION_STEPS,
+    CHUNK,
+    END_STEPS,
+    NEWTON_STEPS,
+    QUAD_NODES,
+    QUAD_SAMPLES,
+    EdgeOptions,
+    edge_term,
+    quadrature_image,
+)
 
 __all__ = [
     "BISECTION_STEPS",
@@ -133,6 +143,7 @@ __all__ = [
     "Records",
     "build_prims",
     "edge_term",
+    "quadrature_image",
     "edge_value",
     "first_t",
     "id_offsets",

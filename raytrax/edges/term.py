@@ -79,10 +79,11 @@ def _pixel_of(x, width, height):
     return py * width + px
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad):
+def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
-    whose derivative with respect to ``scene`` is the edge contribution, and the
-    number of sample pairs with an edge between them.
+    whose derivative with respect to ``scene`` is the edge contribution; the
+    number of sample pairs with an edge between them; and the silhouette
+    quadrature's rays (step 6), or ``None`` in a scene without spheres.
 
     ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
     through image positions ``xy`` (with ``light (M,)``: per ray, that light's
@@ -90,9 +91,14 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
     jump ``f_minus - f_plus`` is measured by probe rays just on either side of the
     edge point (``1/256`` of the sample spacing away for visibility edges, 0.03
     pixel for shadow edges), where the probes see the same as the two samples
-    (else the crossing adds nothing). ``radiance_grad(xy (2, M)) -> (M, 3)``: the
-    same rays shaded as the grid's samples are, differentiable with respect to
-    ``scene`` (the silhouette quadrature of step 6).
+    (else the crossing adds nothing).
+
+    The quadrature is returned, not evaluated, so that the caller traces its rays
+    with the sample grid's in one differentiable pass: a dict of (no gradient)
+    ``xy (2, K, Q)`` image positions (the crossings with a non-zero weight first),
+    ``w (K, Q)`` weights and ``pixel (K,)`` flat pixel indices; its contribution
+    to the image is ``sum_q w f(xy)`` added at ``pixel``, minus its own value
+    (:func:`quadrature_image`).
     """
     n = eo.samples
     D = eo.depth
@@ -565,27 +571,17 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
     img = jnp.zeros((height * width, 3), term.dtype)
     for j in range(3):
         img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])
+    quad = None
     if "qx" in res:
-        # The differentiable rays of the silhouette quadrature, live crossings first, in
-        # chunks of C crossings; a chunk without one is skipped.
         live_q = jnp.any(res["qw"] != 0, 0)
         order = jnp.argsort(~live_q, stable=True)
-        Q = res["qw"].shape[0]
-        qx = jnp.moveaxis(res["qx"][:, :, order].reshape(2, Q, nc, C), 2, 0)  # (nc, 2, Q, C)
-        qw = jnp.moveaxis(res["qw"][:, order].reshape(Q, nc, C), 1, 0)  # (nc, Q, C)
-
-        def quad(args):
-            x, w = args
-
-            def run(_):
-                f = radiance_grad(x.reshape(2, -1)).reshape(Q, C, 3)
-                return jnp.sum(w[..., None] * f, 0)
-
-            # Rematerialised in the backward pass: the residuals of every chunk's rays
-            # would otherwise be kept (+50 % of the edge mode's memory).
-            return jax.lax.cond(jnp.any(w != 0), jax.checkpoint(run), lambda _: jnp.zeros((C, 3), dt), None)
-
-        img = img.at[res["pin"][order]].add(jax.lax.map(quad, (qx, qw)).reshape(K, 3))
+        quad = jax.lax.stop_gradient(
+            {
+                "xy": jnp.moveaxis(res["qx"][:, :, order], 1, 2),  # (2, K, Q)
+                "w": res["qw"][:, order].T,  # (K, Q)
+                "pixel": res["pin"][order],
+            }
+        )
     img = eqx.error_if(
         img,
         count > budget,
@@ -593,4 +589,14 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at, radiance_grad)
         f"edge_budget={budget}; pass a larger edge_budget to render",
     )
     img = img - jax.lax.stop_gradient(img)
-    return img.reshape(height, width, 3), count
+    return img.reshape(height, width, 3), count, quad
+
+
+def quadrature_image(quad, f, width: int, height: int):
+    """The silhouette quadrature's term of the image, ``(height, width, 3)``, zero in
+    value: ``quad`` from :func:`edge_term`, ``f (K, Q, 3)`` the differentiable
+    radiance of its rays."""
+    term = jnp.sum(quad["w"][..., None] * f, 1)  # (K, 3)
+    img = jnp.zeros((height * width, 3), f.dtype).at[quad["pixel"]].add(term)
+    img = img - jax.lax.stop_gradient(img)
+    return img.reshape(height, width, 3)

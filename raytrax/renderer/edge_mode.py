@@ -11,11 +11,11 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import rays_through
-from ..edges import edge_term
+from ..edges import edge_term, quadrature_image
 from ..intersect import prepare
 from ..scene import Scene
 from .options import RenderOptions
-from .tiles import render_image
+from .tiles import trace_positions
 from .whitted import trace
 
 
@@ -61,27 +61,35 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
 
 def render_edges(scene: Scene, opts: RenderOptions, eo):
     """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
-    term of :mod:`raytrax.edges` (zero in value) found on the same samples."""
+    term of :mod:`raytrax.edges` (zero in value) found on the same samples.
+
+    The grid's samples and the silhouette quadrature's rays are traced in one
+    differentiable pass (one compiled trace, sharded like the plain render)."""
     st = opts.settings
     n = eo.samples
     W, H = st.width, st.height
-    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=W * n, height=H * n, spp=1), jitter=False)
-    samples = render_image(scene, grid, None)  # (H n, W n, 3), differentiable
-    img = samples.reshape(H, n, W, n, 3).mean((1, 3))
     # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
     # where the pattern changes beside the edge: the derivative the estimate converges
     # to is that of the image as the samples grow, where the filter width goes to 0.
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
-    # The quadrature's rays are shaded as the grid's samples are: ``opts`` (edge mode
-    # has no jitter: ``render`` refuses a key with it).
-    edge, _ = edge_term(
-        scene,
-        W,
-        H,
-        eo,
-        lambda xy, light=None: radiance_at(scene, hard, xy, n, light),
-        lambda xy: radiance_at(scene, opts, xy, n, grad=True),
-    )
+    edge, _, quad = edge_term(scene, W, H, eo, lambda xy, light=None: radiance_at(scene, hard, xy, n, light))
+    # Positions in pixels of the (W n, H n) sample grid, whose sample centres are
+    # (j + 1/2, i + 1/2), exactly as a spp-1 render at that size places them.
+    Gw, Gh = W * n, H * n
+    dt = scene.dtype
+    jj, ii = jnp.meshgrid(jnp.arange(Gw, dtype=dt), jnp.arange(Gh, dtype=dt), indexing="xy")
+    xy = jnp.stack([jj.ravel() + 0.5, ii.ravel() + 0.5])
+    needed = jnp.ones((Gw * Gh,), bool)
+    if quad is not None:
+        K, Q = quad["w"].shape
+        xy = jnp.concatenate([xy, quad["xy"].reshape(2, K * Q) * n], 1)
+        needed = jnp.concatenate([needed, jnp.repeat(jnp.any(quad["w"] != 0, 1), Q)])
+    grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=Gw, height=Gh, spp=1), jitter=False)
+    spread = 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / Gh  # one grid sample's cone
+    f = trace_positions(scene, grid, xy, needed, spread)  # (Gw Gh [+ K Q], 3), differentiable
+    img = f[: Gw * Gh].reshape(H, n, W, n, 3).mean((1, 3))
+    if quad is not None:
+        edge = edge + quadrature_image(quad, f[Gw * Gh :].reshape(K, Q, 3), W, H)
     return img + edge
 
 
