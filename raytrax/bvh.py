@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
+from . import vec as V
 from .shapes.base import check_shape
 from .shapes.triangles import tri_t
 
@@ -196,7 +197,7 @@ def _visit(keys, const, state, body, more, shrink=None):
     shrink = SHRINK if shrink is None else shrink
 
     def nxt(keys):
-        return jnp.min(keys, 1), jnp.argmin(keys, 1).astype(jnp.int32)
+        return V.min_argmin(keys)
 
     def run(keys, const, state, level):
         m = keys.shape[0]
@@ -243,8 +244,7 @@ def closest(acc: Accel, ray, tmin):
         tb, ib = st
         T = tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, tmin)
         T = jnp.where(act[:, None], T, INF)
-        j = jnp.argmin(T, 1).astype(jnp.int32)
-        tj = jnp.min(T, 1)
+        tj, j = V.min_argmin(T)
         ij = _row(acc.index, leaf, j)
         better = (tj < tb) | ((tj == tb) & (ij < ib))
         return jnp.where(better, tj, tb), jnp.where(better, ij, ib)

@@ -120,7 +120,7 @@ def closest_kind(k: Kind, ray, tmin):
     N = k.material.shape[0]
     if N <= BLOCK:
         T = k.tfun(ray2, {n: v[None, :] for n, v in k.soa.items()}, tmin)
-        return jnp.min(T, 1), jnp.argmin(T, 1).astype(jnp.int32)
+        return V.min_argmin(T)
     P, valid, base = _blocks(k.soa)
     n = ray[0].shape[0]
 
@@ -129,9 +129,9 @@ def closest_kind(k: Kind, ray, tmin):
         Pb, vb, b0 = blk
         T = k.tfun(ray2, {name: v[None, :] for name, v in Pb.items()}, tmin)
         T = jnp.where(vb[None, :], T, INF)
-        tj = jnp.min(T, 1)
+        tj, j = V.min_argmin(T)
         better = tj < tb
-        return (jnp.where(better, tj, tb), jnp.where(better, b0 + jnp.argmin(T, 1).astype(jnp.int32), ib)), None
+        return (jnp.where(better, tj, tb), jnp.where(better, b0 + j, ib)), None
 
     init = (jnp.full((n,), INF, ray[0].dtype), jnp.zeros((n,), jnp.int32))
     (tb, ib), _ = jax.lax.scan(body, init, (P, valid, base))
