@@ -54,10 +54,20 @@ def quad_scene():
     return b.build(jnp.float64)
 
 
-def _moment(shift, **kw):
-    """``sum_pixels column * image`` with the quad shifted by ``shift`` along x."""
+# One edge budget for the spp-9 programs, so that the budget test runs the program that
+# test_sliding_quad_matches_analytic_derivative[9] compiled (the budget is static: another
+# value is another compilation). At spp 9 (a 48 x 36 sample grid) the quad has 70 sample
+# pairs with an edge between them, DIAMOND 156.
+QUAD_BUDGET = 100
+DIAMOND = ((0.0, -5.7, 0.0), (7.7, 0.0, 0.0), (0.0, 5.7, 0.0), (-7.7, 0.0, 0.0))  # corners in the image
+
+
+def _moment(shift, corners=None, **kw):
+    """``sum_pixels column * image`` with the quad (or a quad with these ``corners``: the
+    same compiled program) shifted by ``shift`` along x."""
     s = quad_scene()
-    c = rt.parameters(s)["object[0].corners"] + jnp.stack([shift, 0.0 * shift, 0.0 * shift])[None]
+    base = rt.parameters(s)["object[0].corners"] if corners is None else jnp.asarray(corners, jnp.float64)
+    c = base + jnp.stack([shift, 0.0 * shift, 0.0 * shift])[None]
     img = rt.render(rt.with_parameters(s, {"object[0].corners": c}), **kw)
     col = jnp.arange(QW, dtype=img.dtype)[None, :, None]
     return jnp.sum(col * img)
@@ -69,7 +79,8 @@ def test_sliding_quad_matches_analytic_derivative(spp):
     # by dx pixels over 6 pixel rows: d/dx sum(col * I) = f * 6 * (11 - 5) per channel.
     exact = float(np.sum(AMBIENT * ALBEDO * 6 * (11 - 5)))
     zero = jnp.asarray(0.0, jnp.float64)
-    g_edge = float(jax.grad(lambda d: _moment(d, spp=spp, edge_gradients=True))(zero))
+    budget = {"edge_budget": QUAD_BUDGET} if spp == 9 else {}  # spp 1: the default budget
+    g_edge = float(jax.grad(lambda d: _moment(d, spp=spp, edge_gradients=True, **budget))(zero))
     g_plain = float(jax.grad(lambda d: _moment(d, spp=spp))(zero))
     assert g_plain == 0.0  # constant radiance: the interior term is zero, all of it is the edge
     # The rows quadrature is exact; what is left is where each of the four corners is
@@ -88,9 +99,13 @@ def test_edge_mode_leaves_the_image_unchanged():
 
 
 def test_edge_budget_overflow_is_a_clear_error():
+    # The program of test_sliding_quad_matches_analytic_derivative[9] (the same budget),
+    # with a quad whose edges more sample pairs straddle than the budget allows.
     zero = jnp.asarray(0.0, jnp.float64)
     with pytest.raises(Exception, match="edge_budget"):
-        jax.block_until_ready(jax.grad(lambda d: _moment(d, spp=9, edge_gradients=True, edge_budget=5))(zero))
+        jax.block_until_ready(
+            jax.grad(lambda d: _moment(d, DIAMOND, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))(zero)
+        )
 
 
 def test_bad_edge_options():
