@@ -17,7 +17,7 @@ from ..materials import refracts_dominantly
 from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
 
-SUB_MIN = 128  # the least rays per sub-batch of a records level
+SUB_MIN = 1024  # the least rays per sub-batch of a records level
 
 
 def search(scene, kinds, off, o, d, tmax=None):
