@@ -65,6 +65,12 @@ def rays_through(camera: Camera, xy, width: int, height: int):
     return jnp.broadcast_to(camera.position[:, None], d.shape), d
 
 
+def cone_spread(camera: Camera, height: int, n: int = 1):
+    """Cone spread angle (radians per unit distance) of one sample of an ``n x n``
+    grid per pixel of an image ``height`` pixels tall (texture footprints)."""
+    return 2.0 * jnp.tan(jnp.deg2rad(camera.fov) * 0.5) / height / n
+
+
 def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=None):
     """Camera rays for flat pixel indices ``pix (P,)`` (row-major).
 
@@ -86,6 +92,4 @@ def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=Non
         sy = sy + j[1] / n
     xy = jnp.stack([(col[None, :] + sx).ravel(), (row[None, :] + sy).ravel()])
     o, d = rays_through(camera, xy, width, height)
-    half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
-    spread = 2.0 * half_h / height / n
-    return o, d, spread
+    return o, d, cone_spread(camera, height, n)

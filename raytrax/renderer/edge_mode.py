@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..camera import rays_through
+from ..camera import cone_spread, rays_through
 from ..edges import edge_term, quadrature_image
 from ..intersect import prepare
 from ..scene import Scene
@@ -34,11 +34,6 @@ def map_positions(fn, xy, chunk: int, sel=None):
     return out.reshape((nc * c,) + out.shape[2:])[:M]
 
 
-def sample_spread(scene: Scene, opts: RenderOptions, n: int):
-    """Cone spread of one sample of the ``n x n`` grid (see ``primary_rays``)."""
-    return 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / opts.settings.height / n
-
-
 def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
     gradient unless ``grad``; the jump across an edge). ``light`` (an index or ``(M,)``
@@ -49,7 +44,7 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
     if not grad:
         scene = jax.lax.stop_gradient(scene)
     sel = None if light is None else jnp.broadcast_to(jnp.asarray(light, jnp.int32), xy.shape[1:])
-    spread = sample_spread(scene, opts, n)
+    spread = cone_spread(scene.camera, st.height, n)
     kinds = prepare(scene)
 
     def one(x, s):
@@ -85,7 +80,7 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
         xy = jnp.concatenate([xy, quad["xy"].reshape(2, K * Q) * n], 1)
         needed = jnp.concatenate([needed, jnp.repeat(jnp.any(quad["w"] != 0, 1), Q)])
     grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=Gw, height=Gh, spp=1), jitter=False)
-    spread = 2.0 * jnp.tan(jnp.deg2rad(scene.camera.fov) * 0.5) / Gh  # one grid sample's cone
+    spread = cone_spread(scene.camera, Gh)  # one grid sample's cone
     f = trace_positions(scene, grid, xy, needed, spread)  # (Gw Gh [+ K Q], 3), differentiable
     img = f[: Gw * Gh].reshape(H, n, W, n, 3).mean((1, 3))
     if quad is not None:
