@@ -640,3 +640,16 @@ def test_the_issue_example_is_refused_by_the_builder():
         "material.red.color: expected an [r, g, b] array of numbers in [0, 1] in physical shading "
         "(or one number for grey), got [2.0, 1.0, 1.0]"
     )
+
+
+def test_image_textures_of_names_that_sanitise_alike_keep_their_own_files(tmp_path):
+    # "'" and '"' both become "_" in a sidecar file name; each keeps its own image.
+    b = rt.SceneBuilder("classic", width=4, height=4, spp=1)
+    b.camera(position=(0, 0, 5), look_at=(0, 0, 0), fov=30)
+    img = np.zeros((2, 2, 3), np.float32)
+    img[0, 1, 1] = 0.5
+    b.material("'", color=(1, 1, 1), texture=rt.ImageTexture(img))
+    b.material('"', color=(1, 1, 1), texture=rt.ImageTexture(np.zeros((1, 1, 3), np.float32)))
+    b.sphere((0, 0, 0), 1.0, "'")
+    b.sphere((0, 2, 0), 1.0, '"')
+    roundtrip(b.build(), str(tmp_path))

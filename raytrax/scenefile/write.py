@@ -147,6 +147,13 @@ def dumps_scene(
                     )
                 safe = re.sub(r"[^A-Za-z0-9_.-]", "_", name)
                 fname = f"{stem}.{safe}.exr"
+                # Names that differ only in characters replaced above ("'", '"', "é")
+                # would share a file: later ones get a counter.
+                used = {f for f, _ in sidecars}
+                k = 2
+                while fname in used:
+                    fname = f"{stem}.{safe}.{k}.exr"
+                    k += 1
                 sidecars.append((fname, t.image))
                 d = dict(kind="image", file=fname)
             L.append(f"texture = {w.val(d)}")
