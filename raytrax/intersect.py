@@ -24,7 +24,7 @@ from . import shapes as S
 from . import vec as V
 from .shapes.triangles import tri_hit, tri_soa, tri_t
 
-BLOCK = 32
+BLOCK = 128
 EPS_REL = 1e-4  # offset of spawned rays from their surface, relative to 1 + max |coordinate|
 
 
