@@ -218,10 +218,18 @@ def one_call(name, W, H, spp, edge):
     else:
         path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", f"{name}.toml")
         sc = rt.load_scene(path, dtype=jnp.float32).replace_settings(width=W, height=H, spp=spp)
-        lo, q0 = make_loss(sc)
+        if name == "edge_occluders":
+            lo, q0 = make_loss(sc)
 
-        def loss_scene(q):
-            return lo(q, edge_gradients=edge)
+            def loss_scene(q):
+                return lo(q, edge_gradients=edge)
+
+        else:  # any other scene: every light position and object's geometry, a smooth-weighted image sum
+            wgt = jnp.asarray(smooth_weights(H, W), sc.dtype)
+            q0 = {k: v for k, v in rt.parameters(sc).items() if k.startswith("object[") or k.endswith("].position")}
+
+            def loss_scene(q):
+                return jnp.mean(wgt * rt.render(rt.with_parameters(sc, q), edge_gradients=edge))
 
         loss = loss_scene
 
@@ -234,7 +242,7 @@ def one_call(name, W, H, spp, edge):
         t = time.perf_counter()
         v, g = jax.block_until_ready(f(q0))
         times.append(time.perf_counter() - t)
-    g = float(g) if name == "glass" else float(np.abs(flat(g)).sum())
+    g = float(g) if name == "glass" else float(sum(np.abs(np.asarray(x)).sum() for x in jax.tree.leaves(g)))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     return first, statistics.median(times), rss, g
 
@@ -255,7 +263,9 @@ def calls(a):
         out = {}
         for edge in (False, True):
             cmd = [sys.executable, os.path.abspath(__file__), "--one", f"{name},{W},{H},{a.calls_spp},{int(edge)}"]
-            res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+            res = subprocess.run(cmd, capture_output=True, text=True)
+            if res.returncode:
+                sys.exit(f"{' '.join(cmd[1:])} failed:\n{res.stderr[-3000:]}")
             out[edge] = json.loads(res.stdout.strip().splitlines()[-1])
         p, e = out[False], out[True]
         print(
