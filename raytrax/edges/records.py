@@ -157,8 +157,11 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
 
         return jax.lax.fori_loop(0, nsb, sub, init)
 
-    # One compiled level, scanned over the chain.
-    _, out = jax.lax.scan(level, (o, d, jnp.ones((M,), bool)), None, length=depth)
+    # One compiled level, scanned over the chain. The barrier keeps XLA from unrolling
+    # the first level with a constant mask and constant-folding its bookkeeping (a prefix
+    # sum over every sample: seconds of compilation per million samples).
+    alive0 = jax.lax.optimization_barrier(jnp.ones((M,), bool))
+    _, out = jax.lax.scan(level, (o, d, alive0), None, length=depth)
     return Records(*out)
 
 
