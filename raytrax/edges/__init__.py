@@ -124,7 +124,6 @@ from .term import (
     QUAD_SAMPLES,
     EdgeOptions,
     edge_term,
-    quadrature_image,
 )
 
 __all__ = [
@@ -143,7 +142,6 @@ __all__ = [
     "Records",
     "build_prims",
     "edge_term",
-    "quadrature_image",
     "edge_value",
     "first_t",
     "id_offsets",

@@ -18,6 +18,7 @@ from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
 
 SUB_MIN = 1024  # the least rays per sub-batch of a records level
+RECORD_TILE = 1 << 18  # the most rays recorded at once
 
 
 def search(scene, kinds, off, o, d, tmax=None):
@@ -98,7 +99,21 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
 
 def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
-    ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``."""
+    ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``. More than
+    ``RECORD_TILE`` rays are recorded in tiles of that many (``lax.map``), so that
+    memory holds one tile's rays, not every sample's."""
+    M = xy.shape[1]
+    if M <= RECORD_TILE:
+        return _records(scene, kinds, off, P, xy, width, height, depth)
+    nt = -(-M // RECORD_TILE)
+    xyt = jnp.pad(xy, ((0, 0), (0, nt * RECORD_TILE - M)), mode="edge").reshape(2, nt, RECORD_TILE)
+    out = jax.lax.map(
+        lambda x: _records(scene, kinds, off, P, x, width, height, depth), jnp.moveaxis(xyt, 1, 0)
+    )  # (nt, ..., RECORD_TILE)
+    return Records(*(jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (nt * RECORD_TILE,))[..., :M] for v in out))
+
+
+def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     o, d = rays_through(scene.camera, xy, width, height)
     M = xy.shape[1]
     ns = off["ns"]

@@ -29,13 +29,22 @@ QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
 @dataclasses.dataclass(frozen=True)
 class EdgeOptions:
     """Static options of the boundary term: ``samples`` per pixel side (``n``),
-    ``budget``, the most sample pairs with an edge between them (``None``: a
-    quarter of all samples, at least 4096), and ``depth``, the chain levels
+    ``budget``, the most sample pairs with an edge between them (``None``:
+    :func:`default_budget`), and ``depth``, the chain levels
     followed (the render's ``max_depth + 1``)."""
 
     samples: int = 4
     budget: int | None = None
     depth: int = 1
+
+
+def default_budget(samples: int, n: int) -> int:
+    """The default ``edge_budget`` of ``samples`` grid samples, ``n`` per pixel side: a
+    quarter of the samples, at least 4096 and, beyond 65536, at most the larger of
+    65536 and ``samples / (2 n)``. The pairs with an edge between them grow with the
+    edges' length in sample spacings (``n`` per pixel), not with the image's area, so
+    a large grid needs a smaller share."""
+    return max(4096, min(samples // 4, max(1 << 16, samples // (2 * n))))
 
 
 def _pairs(Gw, Gh):
@@ -97,8 +106,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     with the sample grid's in one differentiable pass: a dict of (no gradient)
     ``xy (2, K, Q)`` image positions (the crossings with a non-zero weight first),
     ``w (K, Q)`` weights and ``pixel (K,)`` flat pixel indices; its contribution
-    to the image is ``sum_q w f(xy)`` added at ``pixel``, minus its own value
-    (:func:`quadrature_image`).
+    to the image is ``sum_q w f(xy)`` added at ``pixel``, minus its own value.
     """
     n = eo.samples
     D = eo.depth
@@ -124,8 +132,20 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     def okey(g):
         return object_key(P_sg, ns, g)
 
-    ha, hb = R.hit[:, a], R.hit[:, b]
-    same_r = R.refr[:, a] == R.refr[:, b]
+    # Per pair, the first and the second sample's record: slices of the grid (the pairs
+    # are in :func:`_pairs`' order), not gathers.
+    def sides(x):  # (..., S) -> (..., npairs) twice
+        g = x.reshape(x.shape[:-1] + (Gh, Gw))
+        nh, nv = x.shape[:-1] + (Gh * (Gw - 1),), x.shape[:-1] + ((Gh - 1) * Gw,)
+        first = jnp.concatenate([g[..., :, :-1].reshape(nh), g[..., :-1, :].reshape(nv)], -1)
+        second = jnp.concatenate([g[..., :, 1:].reshape(nh), g[..., 1:, :].reshape(nv)], -1)
+        return first, second
+
+    ha, hb = sides(R.hit)
+    ra, rb = sides(R.refr)
+    same_r = ra == rb
+    fa_all, fb_all = sides(R.first)  # (D, L, npairs)
+    la_all, lb_all = sides(R.last)
     # Visibility: the first chain level whose hits differ, after a common prefix.
     pre = jnp.ones(a.shape, bool)
     vis_act = jnp.zeros(a.shape, bool)
@@ -152,7 +172,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 & eqh
                 & (ha[lvl] >= 0)
                 & ~found
-                & ((R.first[lvl, k, a] != R.first[lvl, k, b]) | (R.last[lvl, k, a] != R.last[lvl, k, b]))
+                & ((fa_all[lvl, k] != fb_all[lvl, k]) | (la_all[lvl, k] != lb_all[lvl, k]))
             )
             lk = jnp.where(dif, lvl, lk)
             found = found | dif
@@ -160,10 +180,10 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         ls.append(lk)
         recv = okey(at_level(ha, lk))
         cands = [
-            at_level(R.last[:, k, a], lk),
-            at_level(R.first[:, k, a], lk),
-            at_level(R.last[:, k, b], lk),
-            at_level(R.first[:, k, b], lk),
+            at_level(la_all[:, k], lk),
+            at_level(fa_all[:, k], lk),
+            at_level(lb_all[:, k], lk),
+            at_level(fb_all[:, k], lk),
         ]
         keys = [okey(c) for c in cands]
         for j in range(4):
@@ -172,17 +192,23 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 new = new & (keys[j] != keys[i])
             act.append(new)
     nslot = 1 + 4 * L
-    act = jnp.stack(act, 1).ravel()  # (npairs * nslot,) pair-major
-    budget = eo.budget if eo.budget is not None else max(4096, S // 4)
-    budget = min(budget, act.shape[0])
+    act = jnp.stack(act, 1)  # (npairs, nslot)
+    budget = eo.budget if eo.budget is not None else default_budget(S, n)
+    budget = min(budget, act.size)
     C = min(CHUNK, budget)
     nc = -(-budget // C)
     K = nc * C
-    count = jnp.sum(act)
-    (flat,) = jnp.nonzero(act, size=K, fill_value=0)
+    per_pair = jnp.sum(act, 1, dtype=jnp.int32)
+    count = jnp.sum(per_pair)
+    # Events in pair-major order, compacted in two steps (the pairs with an event,
+    # then their slots), so that no prefix sum runs over every pair's every slot.
+    has = per_pair > 0
+    (p_idx,) = jnp.nonzero(has, size=K, fill_value=0)
+    sub = act[p_idx] & (jnp.arange(K) < jnp.sum(has))[:, None]
+    (flat,) = jnp.nonzero(sub.ravel(), size=K, fill_value=0)
     flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
-    pair = flat // nslot
+    pair = p_idx.astype(jnp.int32)[flat // nslot]
     slot = flat % nslot
     ea, eb = a[pair], b[pair]
     vis = slot == 0
@@ -590,13 +616,3 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     )
     img = img - jax.lax.stop_gradient(img)
     return img.reshape(height, width, 3), count, quad
-
-
-def quadrature_image(quad, f, width: int, height: int):
-    """The silhouette quadrature's term of the image, ``(height, width, 3)``, zero in
-    value: ``quad`` from :func:`edge_term`, ``f (K, Q, 3)`` the differentiable
-    radiance of its rays."""
-    term = jnp.sum(quad["w"][..., None] * f, 1)  # (K, 3)
-    img = jnp.zeros((height * width, 3), f.dtype).at[quad["pixel"]].add(term)
-    img = img - jax.lax.stop_gradient(img)
-    return img.reshape(height, width, 3)

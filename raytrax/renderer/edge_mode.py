@@ -11,11 +11,11 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import cone_spread, rays_through
-from ..edges import edge_term, quadrature_image
+from ..edges import edge_term
 from ..intersect import prepare
 from ..scene import Scene
 from .options import RenderOptions
-from .tiles import trace_positions
+from .tiles import splat_positions
 from .whitted import trace
 
 
@@ -69,23 +69,26 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
     edge, _, quad = edge_term(scene, W, H, eo, lambda xy, light=None: radiance_at(scene, hard, xy, n, light))
     # Positions in pixels of the (W n, H n) sample grid, whose sample centres are
-    # (j + 1/2, i + 1/2), exactly as a spp-1 render at that size places them.
+    # (j + 1/2, i + 1/2), exactly as a spp-1 render at that size places them. Image 0
+    # is the grid's mean per pixel, image 1 the quadrature's term.
     Gw, Gh = W * n, H * n
     dt = scene.dtype
-    jj, ii = jnp.meshgrid(jnp.arange(Gw, dtype=dt), jnp.arange(Gh, dtype=dt), indexing="xy")
-    xy = jnp.stack([jj.ravel() + 0.5, ii.ravel() + 0.5])
+    jj, ii = jnp.meshgrid(jnp.arange(Gw, dtype=jnp.int32), jnp.arange(Gh, dtype=jnp.int32), indexing="xy")
+    xy = jnp.stack([jj.ravel().astype(dt) + 0.5, ii.ravel().astype(dt) + 0.5])
+    pixel = ((ii // n) * W + jj // n).ravel()
+    weight = jnp.zeros((Gw * Gh, 2), dt).at[:, 0].set(1.0 / (n * n))
     needed = jnp.ones((Gw * Gh,), bool)
     if quad is not None:
         K, Q = quad["w"].shape
         xy = jnp.concatenate([xy, quad["xy"].reshape(2, K * Q) * n], 1)
+        pixel = jnp.concatenate([pixel, jnp.repeat(quad["pixel"], Q)])
+        weight = jnp.concatenate([weight, jnp.stack([jnp.zeros((K * Q,), dt), quad["w"].ravel()], 1)])
         needed = jnp.concatenate([needed, jnp.repeat(jnp.any(quad["w"] != 0, 1), Q)])
     grid = dataclasses.replace(opts, settings=dataclasses.replace(st, width=Gw, height=Gh, spp=1), jitter=False)
     spread = cone_spread(scene.camera, Gh)  # one grid sample's cone
-    f = trace_positions(scene, grid, xy, needed, spread)  # (Gw Gh [+ K Q], 3), differentiable
-    img = f[: Gw * Gh].reshape(H, n, W, n, 3).mean((1, 3))
-    if quad is not None:
-        edge = edge + quadrature_image(quad, f[Gw * Gh :].reshape(K, Q, 3), W, H)
-    return img + edge
+    img, q = splat_positions(scene, grid, xy, needed, spread, pixel, weight, W * H)  # differentiable
+    q = q - jax.lax.stop_gradient(q)  # the quadrature's term is zero in value
+    return (img + q).reshape(H, W, 3) + edge
 
 
 render_edges_jit = eqx.filter_jit(render_edges)

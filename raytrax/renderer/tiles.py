@@ -16,6 +16,20 @@ from .options import RenderOptions
 from .whitted import trace
 
 
+def _sharded(run, n_dev: int, out_spec):
+    """``run(scene, xs, const)`` with ``xs`` split along its leading axis over ``n_dev``
+    devices (``jax.shard_map``); ``out_spec``: the output's partition (``"tiles"`` or
+    ``None``: replicated, summed over devices by ``run`` itself)."""
+    if n_dev <= 1:
+        return run
+    from jax.sharding import PartitionSpec as Spec
+
+    mesh = jax.make_mesh((n_dev,), ("tiles",), devices=jax.devices()[:n_dev], axis_types=(jax.sharding.AxisType.Auto,))
+    return jax.shard_map(
+        run, mesh=mesh, in_specs=(Spec(), Spec("tiles"), Spec()), out_specs=Spec(out_spec), check_vma=False
+    )
+
+
 def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     """``tile_fn(scene, kinds, x, const)`` for every ``x`` along the leading axis of
     the pytree ``xs`` (``lax.map``, each tile under ``jax.checkpoint`` so that reverse
@@ -26,16 +40,7 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
         kinds = prepare(scene)
         return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
 
-    if n_dev > 1:
-        from jax.sharding import PartitionSpec as Spec
-
-        mesh = jax.make_mesh(
-            (n_dev,), ("tiles",), devices=jax.devices()[:n_dev], axis_types=(jax.sharding.AxisType.Auto,)
-        )
-        run = jax.shard_map(
-            run, mesh=mesh, in_specs=(Spec(), Spec("tiles"), Spec()), out_specs=Spec("tiles"), check_vma=False
-        )
-    return run(scene, xs, const)
+    return _sharded(run, n_dev, "tiles")(scene, xs, const)
 
 
 def render_image(scene: Scene, opts: RenderOptions, key):
@@ -59,31 +64,47 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     return out.reshape(n_tiles * tile, 3)[:P].reshape(H, W, 3)
 
 
-def trace_positions(scene: Scene, opts: RenderOptions, xy, needed, spread):
-    """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (in
-    pixels of an image of ``opts.settings``' size; see :func:`raytrax.camera.rays_through`),
-    with cone spread ``spread``; in tiles of ``opts.tile_rays`` rays sharded over
-    ``opts.devices``. ``needed (M,)`` (no gradient): a tile none of whose rays is
-    needed is skipped (its radiance is 0)."""
+def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel, weight, n_pixels: int):
+    """``sum_m weight[m, k] f_m`` at ``pixel[m]``: images ``(k, n_pixels, 3)`` made of
+    the radiance ``f_m`` of camera rays through image positions ``xy (2, M)`` (in
+    pixels of an image of ``opts.settings``' size; see
+    :func:`raytrax.camera.rays_through`) with cone spread ``spread``; ``pixel (M,)``
+    flat indices, ``weight (M, k)`` (no gradient). The rays are traced in tiles of
+    ``opts.tile_rays`` (each under ``jax.checkpoint``) sharded over
+    ``opts.devices``, and each tile is added into the images as it is traced, so
+    that memory holds the images and one tile, not every ray's radiance. ``needed
+    (M,)`` (no gradient): a tile none of whose rays is needed is skipped."""
     st = opts.settings
-    M = xy.shape[1]
+    M, k = weight.shape
     c = max(1, min(M, opts.tile_rays))
-    n_tiles = math.ceil(M / c / opts.devices) * opts.devices
+    n_dev = opts.devices
+    n_tiles = math.ceil(M / c / n_dev) * n_dev
     pad = n_tiles * c - M
     xyt = jnp.pad(xy, ((0, 0), (0, pad)), mode="edge").reshape(2, n_tiles, c).transpose(1, 0, 2)
     live = jnp.any(jnp.pad(needed, (0, pad)).reshape(n_tiles, c), 1)
+    pix = jnp.pad(pixel, (0, pad)).reshape(n_tiles, c)
+    wt = jnp.pad(weight, ((0, pad), (0, 0))).reshape(n_tiles, c, k)
 
-    def tile_fn(scene, kinds, args, spread):
-        x, on = args
+    def run(scene, xs, spread):
+        kinds = prepare(scene)
 
-        def run(x):
-            o, d = rays_through(scene.camera, x, st.width, st.height)
-            return trace(scene, kinds, o, d, spread, opts).T
+        @jax.checkpoint
+        def radiance(x, on):
+            def go(x):
+                o, d = rays_through(scene.camera, x, st.width, st.height)
+                return trace(scene, kinds, o, d, spread, opts).T
 
-        return jax.lax.cond(on, run, lambda x: jnp.zeros((c, 3), scene.dtype), x)
+            return jax.lax.cond(on, go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
 
-    out = map_tiles(tile_fn, scene, (xyt, live), opts.devices, spread)
-    return out.reshape(n_tiles * c, 3)[:M]
+        def tile(acc, args):
+            x, on, p, w = args
+            f = radiance(x, on)  # (c, 3)
+            return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
+
+        acc, _ = jax.lax.scan(tile, jnp.zeros((k, n_pixels, 3), scene.dtype), xs)
+        return jax.lax.psum(acc, "tiles") if n_dev > 1 else acc
+
+    return _sharded(run, n_dev, None)(scene, (xyt, live, pix, wt), spread)
 
 
 render_image_jit = eqx.filter_jit(render_image)
