@@ -160,22 +160,25 @@ def miss(P: Prims, ns, ids, o, d):
         # faces is never mistaken for its silhouette.
         first = jnp.maximum(P.solid[pi], 0)
         big = jnp.asarray(1e30, o.dtype)
-        tn, tf = -big, big
-        jn = jf = jnp.zeros_like(feat)
-        for j in range(MAX_FACES):
-            fj = jnp.clip(first + j, 0, P.finite.shape[0] - 1)
-            use = j < P.nface[pi]
-            nj = P.pn[:, fj]
-            den = V.dot(d, nj)
-            num = V.dot(P.pp[:, fj] - o, nj)
-            t = V.safe_div(num, den)
-            par = jnp.abs(den) <= 1e-30
-            enter = jnp.where(par, jnp.where(num >= 0, -big, big), jnp.where(den < 0, t, -big))
-            leave = jnp.where(par, jnp.where(num >= 0, big, -big), jnp.where(den > 0, t, big))
-            jn = jnp.where(use & (enter > tn), j, jn)
-            jf = jnp.where(use & (leave < tf), j, jf)
-            tn = jnp.where(use, jnp.maximum(tn, enter), tn)
-            tf = jnp.where(use, jnp.minimum(tf, leave), tf)
+        # Every face slot at once, (MAX_FACES, E); slots past the solid's faces unused.
+        j = jnp.arange(MAX_FACES, dtype=jnp.int32)[:, None]
+        fj = jnp.clip(first[None] + j, 0, P.finite.shape[0] - 1)
+        use = j < P.nface[pi][None]
+        nj = P.pn[:, fj]  # (3, MAX_FACES, E)
+        den = V.dot(d[:, None], nj)
+        num = V.dot(P.pp[:, fj] - o[:, None], nj)
+        t = V.safe_div(num, den)
+        par = jnp.abs(den) <= 1e-30
+        enter = jnp.where(par, jnp.where(num >= 0, -big, big), jnp.where(den < 0, t, -big))
+        leave = jnp.where(par, jnp.where(num >= 0, big, -big), jnp.where(den > 0, t, big))
+        # The entry (exit) plane: the first slot of the largest entry (smallest exit),
+        # -big (big) and slot 0 when no face bounds it.
+        tn = jnp.maximum(jnp.max(jnp.where(use, enter, -big), 0), -big)
+        tf = jnp.minimum(jnp.min(jnp.where(use, leave, big), 0), big)
+        jn = jnp.min(jnp.where(use & (enter == tn[None]) & (enter > -big), j, MAX_FACES), 0)
+        jf = jnp.min(jnp.where(use & (leave == tf[None]) & (leave < big), j, MAX_FACES), 0)
+        jn = jnp.where(jn == MAX_FACES, 0, jn)
+        jf = jnp.where(jf == MAX_FACES, 0, jf)
         solid = P.solid[pi] >= 0
         gp = jnp.where(solid, tn - tf, gp)
         feat = jnp.where(solid, 8 * jn + jf, feat)
