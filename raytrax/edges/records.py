@@ -106,11 +106,12 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     if M <= RECORD_TILE:
         return _records(scene, kinds, off, P, xy, width, height, depth)
     nt = -(-M // RECORD_TILE)
-    xyt = jnp.pad(xy, ((0, 0), (0, nt * RECORD_TILE - M)), mode="edge").reshape(2, nt, RECORD_TILE)
+    c = -(-M // nt)  # equal tiles, the last padded by fewer than nt rays
+    xyt = jnp.pad(xy, ((0, 0), (0, nt * c - M)), mode="edge").reshape(2, nt, c)
     out = jax.lax.map(
         lambda x: _records(scene, kinds, off, P, x, width, height, depth), jnp.moveaxis(xyt, 1, 0)
-    )  # (nt, ..., RECORD_TILE)
-    return Records(*(jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (nt * RECORD_TILE,))[..., :M] for v in out))
+    )  # (nt, ..., c)
+    return Records(*(jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (nt * c,))[..., :M] for v in out))
 
 
 def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
