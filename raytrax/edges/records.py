@@ -100,8 +100,8 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
 def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
     ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``. More than
-    ``RECORD_TILE`` rays are recorded in tiles of that many (``lax.map``), so that
-    memory holds one tile's rays, not every sample's."""
+    ``RECORD_TILE`` rays are recorded in equal tiles of at most that many
+    (``lax.map``), so that memory holds one tile's rays, not every sample's."""
     M = xy.shape[1]
     if M <= RECORD_TILE:
         return _records(scene, kinds, off, P, xy, width, height, depth)
