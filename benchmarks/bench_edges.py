@@ -179,27 +179,12 @@ def cost(a):
 
 
 def glass_scene(width, height, spp, ior, depth=6):
-    """A glass ball (``material.glass.ior``) over a 10 x 10 checker of thin boxes, five
-    small balls behind it, one point light (107 objects; the scene of
-    examples/fit_glass_over_geometry.py with the balls and depth 6)."""
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=spp, max_depth=depth, background=(0.05, 0.05, 0.08))
-    b.camera(position=(0, 4.0, 5.5), look_at=(0, 0, 0), fov=40)
-    b.light((3.0, 6.0, 2.0), intensity=(60, 60, 60))
-    b.material("floor", color=(0.7, 0.7, 0.7))
-    b.material("red", color=(0.8, 0.15, 0.1))
-    b.material("blue", color=(0.1, 0.2, 0.8))
-    b.material("glass", color=(0, 0, 0), transparency=1.0, ior=ior)
-    b.material("ball", color=(0.8, 0.8, 0.2))
-    b.plane((0, -0.05, 0), (0, 1, 0), "floor")
-    n, s = 10, 0.5
-    for i in range(n):
-        for j in range(n):
-            x0, z0 = (i - n / 2) * s, (j - n / 2) * s
-            b.box((x0, 0.0, z0), (x0 + s, 0.08, z0 + s), "red" if (i + j) % 2 else "blue")
-    b.sphere((0, 0.9, 0.0), 0.8, "glass")
-    for k in range(5):
-        b.sphere((-1.6 + 0.8 * k, 0.35, -1.6), 0.25, "ball")
-    return b.build()
+    """``scenes/glass_over_boxes.toml`` (a glass ball, ``material.glass.ior``, over a
+    10 x 10 checker of thin boxes, five small balls behind it, one point light; 107
+    objects) at this size."""
+    s = rt.load_scene(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "glass_over_boxes.toml"))
+    s = s.replace_settings(width=width, height=height, spp=spp, max_depth=depth)
+    return rt.with_parameters(s, {"material.glass.ior": ior})
 
 
 def one_call(name, W, H, spp, edge):

@@ -1,5 +1,6 @@
 """Edge mode sharded over devices: the sample grid and the silhouette quadrature's
-rays are traced in one pass over tiles, sharded like the plain render."""
+rays are traced in one pass over tiles, sharded like the plain render; the grid's
+records are split over the devices, and the events' chunks dealt to them in turn."""
 
 import os
 

@@ -1,6 +1,7 @@
 """Edge gradients through glass onto many box edges: the refractive index of a
 glass ball over a 10 x 10 checker of thin boxes (five small balls behind it, one
-point light, depth 6; the scene of benchmarks/bench_edges.py ``glass``).
+point light, depth 6: ``scenes/glass_over_boxes.toml``, also benchmarked by
+benchmarks/bench_edges.py ``glass``).
 
 What the ball shows of the checker moves with the index; each moving box edge
 seen through the glass is a boundary term that plain automatic differentiation
@@ -21,6 +22,7 @@ rest of the suite on one worker, so it runs only with ``RAYTRAX_SLOW_TESTS=1``:
 
 import functools
 import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -35,29 +37,15 @@ REF_SPP = 256
 STEP = 0.004
 KEYS = 4
 NAME = "material.glass.ior"
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
 def glass_scene(ior, depth=6):
-    """A glass ball over a 10 x 10 checker of thin red and blue boxes, five small balls
-    behind it, one point light (107 objects), float64."""
-    b = rt.SceneBuilder("physical", width=W, height=H, spp=SPP, max_depth=depth, background=(0.05, 0.05, 0.08))
-    b.camera(position=(0, 4.0, 5.5), look_at=(0, 0, 0), fov=40)
-    b.light((3.0, 6.0, 2.0), intensity=(60, 60, 60))
-    b.material("floor", color=(0.7, 0.7, 0.7))
-    b.material("red", color=(0.8, 0.15, 0.1))
-    b.material("blue", color=(0.1, 0.2, 0.8))
-    b.material("glass", color=(0, 0, 0), transparency=1.0, ior=ior)
-    b.material("ball", color=(0.8, 0.8, 0.2))
-    b.plane((0, -0.05, 0), (0, 1, 0), "floor")
-    n, s = 10, 0.5
-    for i in range(n):
-        for j in range(n):
-            x0, z0 = (i - n / 2) * s, (j - n / 2) * s
-            b.box((x0, 0.0, z0), (x0 + s, 0.08, z0 + s), "red" if (i + j) % 2 else "blue")
-    b.sphere((0, 0.9, 0.0), 0.8, "glass")
-    for k in range(5):
-        b.sphere((-1.6 + 0.8 * k, 0.35, -1.6), 0.25, "ball")
-    return b.build(jnp.float64)
+    """``scenes/glass_over_boxes.toml`` (a glass ball over a 10 x 10 checker of thin
+    boxes, five small balls behind it, one point light; 107 objects) at this test's
+    size, float64."""
+    s = rt.load_scene(SCENES / "glass_over_boxes.toml", dtype=jnp.float64)
+    return rt.with_parameters(s.replace_settings(width=W, height=H, spp=SPP, max_depth=depth), {NAME: ior})
 
 
 @functools.cache

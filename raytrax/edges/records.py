@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from .. import textures as tx
 from .. import vec as V
 from ..camera import rays_through
+from ..chunks import equal_chunks, map_chunks
 from ..intersect import closest_kind, no_hit, offset_scale
 from ..materials import refracts_dominantly
 from ..textures import pattern_cell
@@ -97,21 +98,15 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
     return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
 
 
-def records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
+def records(scene, kinds, off, P: Prims, xy, width, height, depth, devices: int = 1) -> Records:
     """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
     ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``. More than
     ``RECORD_TILE`` rays are recorded in equal tiles of at most that many
-    (``lax.map``), so that memory holds one tile's rays, not every sample's."""
+    (``lax.map``), so that memory holds one tile's rays, not every sample's;
+    ``devices > 1``: the tiles are split over that many devices."""
     M = xy.shape[1]
-    if M <= RECORD_TILE:
-        return _records(scene, kinds, off, P, xy, width, height, depth)
-    nt = -(-M // RECORD_TILE)
-    c = -(-M // nt)  # equal tiles, the last padded by fewer than nt rays
-    xyt = jnp.pad(xy, ((0, 0), (0, nt * c - M)), mode="edge").reshape(2, nt, c)
-    out = jax.lax.map(
-        lambda x: _records(scene, kinds, off, P, x, width, height, depth), jnp.moveaxis(xyt, 1, 0)
-    )  # (nt, ..., c)
-    return Records(*(jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (nt * c,))[..., :M] for v in out))
+    n, c = equal_chunks(M, RECORD_TILE, devices)
+    return map_chunks(lambda x: _records(scene, kinds, off, P, x, width, height, depth), xy, M, n, c, devices=devices)
 
 
 def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
+from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
@@ -30,12 +31,14 @@ QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
 class EdgeOptions:
     """Static options of the boundary term: ``samples`` per pixel side (``n``),
     ``budget``, the most sample pairs with an edge between them (``None``:
-    :func:`default_budget`), and ``depth``, the chain levels
-    followed (the render's ``max_depth + 1``)."""
+    :func:`default_budget`), ``depth``, the chain levels
+    followed (the render's ``max_depth + 1``), and ``devices``, over how many of
+    ``jax.devices()`` the grid's records and the events are split."""
 
     samples: int = 4
     budget: int | None = None
     depth: int = 1
+    devices: int = 1
 
 
 def default_budget(samples: int, n: int) -> int:
@@ -47,15 +50,15 @@ def default_budget(samples: int, n: int) -> int:
     return max(4096, min(samples // 4, max(1 << 16, samples // (2 * n))))
 
 
-def _pairs(Gw, Gh):
-    j = jnp.arange(Gw)
-    i = jnp.arange(Gh)
-    a_h = (i[:, None] * Gw + j[None, :-1]).ravel()
-    a_v = (i[:-1, None] * Gw + j[None, :]).ravel()
-    a = jnp.concatenate([a_h, a_v]).astype(jnp.int32)
-    b = jnp.concatenate([a_h + 1, a_v + Gw]).astype(jnp.int32)
-    horiz = jnp.concatenate([jnp.ones_like(a_h, bool), jnp.zeros_like(a_v, bool)])
-    return a, b, horiz
+def _pair_samples(pair, Gw, Gh):
+    """The two samples (flat grid indices) of sample pairs ``pair`` and whether the
+    pair is horizontal. Pairs are numbered row by row: first the ``Gh (Gw - 1)``
+    horizontal pairs ``(i, j), (i, j + 1)``, then the ``(Gh - 1) Gw`` vertical pairs
+    ``(i, j), (i + 1, j)``."""
+    nh = Gh * (Gw - 1)
+    horiz = pair < nh
+    a = jnp.where(horiz, (pair // max(Gw - 1, 1)) * Gw + pair % max(Gw - 1, 1), pair - nh)
+    return a, a + jnp.where(horiz, 1, Gw), horiz
 
 
 def at_level(x, level):
@@ -119,15 +122,15 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     P_sg = jax.lax.stop_gradient(P)
     ns = off["ns"]
 
-    def rec_at(x):
-        return records(sg, kinds, off, P_sg, x, width, height, D)
+    def rec_at(x, devices=1):
+        return records(sg, kinds, off, P_sg, x, width, height, D, devices)
 
     dt = scene.dtype
     jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
     xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
-    R = rec_at(xy)
+    R = rec_at(xy, eo.devices)
     L = R.first.shape[1]
-    a, b, horiz = _pairs(Gw, Gh)
+    npairs = Gh * (Gw - 1) + (Gh - 1) * Gw
 
     def okey(g):
         return object_key(P_sg, ns, g)
@@ -147,9 +150,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     fa_all, fb_all = sides(R.first)  # (D, L, npairs)
     la_all, lb_all = sides(R.last)
     # Visibility: the first chain level whose hits differ, after a common prefix.
-    pre = jnp.ones(a.shape, bool)
-    vis_act = jnp.zeros(a.shape, bool)
-    lv = jnp.zeros(a.shape, jnp.int32)
+    pre = jnp.ones((npairs,), bool)
+    vis_act = jnp.zeros((npairs,), bool)
+    lv = jnp.zeros((npairs,), jnp.int32)
     for lvl in range(D):
         dh = ha[lvl] != hb[lvl]
         new = pre & dh
@@ -162,9 +165,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     # of either sample's shadow segment), each distinct occluding object once.
     ls = []
     for k in range(L):
-        pre = jnp.ones(a.shape, bool)
-        found = jnp.zeros(a.shape, bool)
-        lk = jnp.zeros(a.shape, jnp.int32)
+        pre = jnp.ones((npairs,), bool)
+        found = jnp.zeros((npairs,), bool)
+        lk = jnp.zeros((npairs,), jnp.int32)
         for lvl in range(D):
             eqh = ha[lvl] == hb[lvl]
             dif = (
@@ -195,8 +198,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     act = jnp.stack(act, 1)  # (npairs, nslot)
     budget = eo.budget if eo.budget is not None else default_budget(S, n)
     budget = min(budget, act.size)
-    C = min(CHUNK, budget)
-    nc = -(-budget // C)
+    nc, C = equal_chunks(budget, CHUNK, eo.devices)
     K = nc * C
     per_pair = jnp.sum(act, 1, dtype=jnp.int32)
     count = jnp.sum(per_pair)
@@ -210,7 +212,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     live = jnp.arange(K) < count
     pair = p_idx.astype(jnp.int32)[flat // nslot]
     slot = flat % nslot
-    ea, eb = a[pair], b[pair]
+    ea, eb, eh = _pair_samples(pair, Gw, Gh)
     vis = slot == 0
     k_ev = jnp.maximum(slot - 1, 0) // 4
     j_ev = jnp.maximum(slot - 1, 0) % 4
@@ -243,11 +245,12 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         "lb": lb,
         "xa": xy[:, ea],
         "xb": xy[:, eb],
-        "eh": horiz[pair],
+        "eh": eh,
     }
 
-    def solve(c):
-        """Everything about one chunk of ``C`` events that needs no gradient."""
+    def solve(c, R):
+        """Everything about one chunk of ``C`` events that needs no gradient (``R``:
+        the grid's records)."""
         zeros = jnp.zeros_like(c["A"])
         A, B, xa, xb, eh, vis = c["A"], c["B"], c["xa"], c["xb"], c["eh"], c["vis"]
 
@@ -575,20 +578,18 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             out["qx"], out["qw"], out["pin"] = qx, qw, _pixel_of(x0, width, height)
         return out
 
-    def chunked(x):  # (..., K) -> (nc, ..., C)
-        return jnp.moveaxis(x.reshape(x.shape[:-1] + (nc, C)), -2, 0)
-
-    def solve_or_skip(c):
-        shapes = jax.eval_shape(solve, c)
+    def solve_or_skip(c, R):
+        shapes = jax.eval_shape(solve, c, R)
         return jax.lax.cond(
             jnp.any(c["live"]),
             solve,
-            lambda _: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
+            lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
             c,
+            R,
         )
 
-    res = jax.lax.map(solve_or_skip, {k: chunked(jax.lax.stop_gradient(v)) for k, v in inputs.items()})
-    res = {k: jnp.moveaxis(v, 0, -2).reshape(v.shape[1:-1] + (K,)) for k, v in res.items()}
+    # The events are packed at the front: the chunks are dealt to the devices in turn.
+    res = map_chunks(solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=R)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
     g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)

@@ -84,5 +84,5 @@ def render(
             )
         if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
-        return render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1))
+        return render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
     return render_image_jit(scene, opts, key)

@@ -4,13 +4,13 @@ plus the boundary term of :mod:`raytrax.edges`."""
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ..camera import cone_spread, rays_through
+from ..chunks import equal_chunks, map_chunks
 from ..edges import edge_term
 from ..intersect import prepare
 from ..scene import Scene
@@ -21,17 +21,13 @@ from .whitted import trace
 
 def map_positions(fn, xy, chunk: int, sel=None):
     """``fn(xy_chunk (2, c), sel_chunk (c,) or None) -> (c, k)`` over image positions
-    ``xy (2, M)`` (and per-position ``sel (M,)``) in chunks of at most ``chunk``
-    (``lax.map``; the last chunk is padded); returns ``(M, k)``."""
+    ``xy (2, M)`` (and per-position ``sel (M,)``) in equal chunks of at most ``chunk``
+    (``lax.map``); returns ``(M, k)``."""
     M = xy.shape[1]
-    c = max(1, min(M, chunk))
-    nc = math.ceil(M / c)
-    xyc = jnp.pad(xy, ((0, 0), (0, nc * c - M)), mode="edge").reshape(2, nc, c).transpose(1, 0, 2)
+    n, c = equal_chunks(M, chunk)
     if sel is None:
-        out = jax.lax.map(lambda x: fn(x, None), xyc)
-    else:
-        out = jax.lax.map(lambda a: fn(*a), (xyc, jnp.pad(sel, (0, nc * c - M), mode="edge").reshape(nc, c)))
-    return out.reshape((nc * c,) + out.shape[2:])[:M]
+        return map_chunks(lambda x: fn(x, None), xy, M, n, c, out_axis=0)
+    return map_chunks(lambda a: fn(*a), (xy, sel), M, n, c, out_axis=0)
 
 
 def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False):

@@ -10,24 +10,11 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import primary_rays, rays_through
+from ..chunks import AXIS, over_devices, split
 from ..intersect import prepare
 from ..scene import Scene
 from .options import RenderOptions
 from .whitted import trace
-
-
-def _sharded(run, n_dev: int, out_spec):
-    """``run(scene, xs, const)`` with ``xs`` split along its leading axis over ``n_dev``
-    devices (``jax.shard_map``); ``out_spec``: the output's partition (``"tiles"`` or
-    ``None``: replicated, summed over devices by ``run`` itself)."""
-    if n_dev <= 1:
-        return run
-    from jax.sharding import PartitionSpec as Spec
-
-    mesh = jax.make_mesh((n_dev,), ("tiles",), devices=jax.devices()[:n_dev], axis_types=(jax.sharding.AxisType.Auto,))
-    return jax.shard_map(
-        run, mesh=mesh, in_specs=(Spec(), Spec("tiles"), Spec()), out_specs=Spec(out_spec), check_vma=False
-    )
 
 
 def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
@@ -40,7 +27,7 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
         kinds = prepare(scene)
         return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
 
-    return _sharded(run, n_dev, "tiles")(scene, xs, const)
+    return over_devices(lambda xs, sc: run(sc[0], xs, sc[1]), n_dev)(xs, (scene, const))
 
 
 def render_image(scene: Scene, opts: RenderOptions, key):
@@ -50,7 +37,7 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     tile = max(1, min(P, opts.tile_rays // spp))
     n_dev = opts.devices
     n_tiles = math.ceil(P / tile / n_dev) * n_dev
-    pix = jnp.minimum(jnp.arange(n_tiles * tile, dtype=jnp.int32), P - 1).reshape(n_tiles, tile)
+    pix = split(jnp.arange(P, dtype=jnp.int32), n_tiles, tile)  # the last pixel repeated as padding
     ids = jnp.arange(n_tiles, dtype=jnp.int32)
 
     def tile_fn(scene, kinds, args, key):
@@ -79,11 +66,10 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     c = max(1, min(M, opts.tile_rays))
     n_dev = opts.devices
     n_tiles = math.ceil(M / c / n_dev) * n_dev
-    pad = n_tiles * c - M
-    xyt = jnp.pad(xy, ((0, 0), (0, pad)), mode="edge").reshape(2, n_tiles, c).transpose(1, 0, 2)
-    live = jnp.any(jnp.pad(needed, (0, pad)).reshape(n_tiles, c), 1)
-    pix = jnp.pad(pixel, (0, pad)).reshape(n_tiles, c)
-    wt = jnp.pad(weight, ((0, pad), (0, 0))).reshape(n_tiles, c, k)
+    xyt = split(xy, n_tiles, c)
+    live = jnp.any(split(needed, n_tiles, c, fill=False), 1)
+    pix = split(pixel, n_tiles, c, fill=0)
+    wt = split(weight, n_tiles, c, axis=0, fill=0)
 
     def run(scene, xs, spread):
         kinds = prepare(scene)
@@ -102,9 +88,9 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
             return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
 
         acc, _ = jax.lax.scan(tile, jnp.zeros((k, n_pixels, 3), scene.dtype), xs)
-        return jax.lax.psum(acc, "tiles") if n_dev > 1 else acc
+        return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
-    return _sharded(run, n_dev, None)(scene, (xyt, live, pix, wt), spread)
+    return over_devices(lambda xs, sc: run(sc[0], xs, sc[1]), n_dev, None)((xyt, live, pix, wt), (scene, spread))
 
 
 render_image_jit = eqx.filter_jit(render_image)

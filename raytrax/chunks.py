@@ -1,0 +1,118 @@
+"""Splitting a batch axis into equal chunks and joining it back.
+
+Every batched pass over many rays (render tiles, the edge term's records, its solve
+chunks, its probes) runs chunk by chunk under ``lax.map`` or ``lax.scan``, so that
+memory holds one chunk's intermediates. These helpers do the bookkeeping once: pad
+the batch axis to ``n * size`` entries, move the chunk index to the front, and after
+the map join the chunks and drop the padding. :func:`over_devices` splits the chunks
+over devices (``jax.shard_map`` along the axis :data:`AXIS`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+AXIS = "chunks"  # the device axis of :func:`over_devices` (for collectives such as ``psum``)
+
+
+def equal_chunks(m: int, most: int, multiple: int = 1) -> tuple[int, int]:
+    """``(n, size)``: the fewest chunks (a multiple of ``multiple``) of at most ``most``
+    entries that hold ``m`` entries, all of the same ``size`` (the padding is less
+    than ``n``)."""
+    n = math.ceil(max(1, m) / max(1, most) / multiple) * multiple
+    return n, max(1, math.ceil(m / n))
+
+
+def split(x, n: int, size: int, axis: int = -1, fill=None):
+    """``x`` with its ``axis`` (``m <= n * size`` entries) padded to ``n * size`` and
+    split into ``n`` chunks of ``size``, the chunk index moved to the front: ``(n, ...,
+    size, ...)``. Padding repeats the last entry (``fill=None``: a valid input for
+    any computation) or is ``fill``."""
+    axis = axis % x.ndim
+    m = x.shape[axis]
+    if m > n * size:
+        raise ValueError(f"split: {m} entries do not fit {n} chunks of {size}")
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (0, n * size - m)
+    if n * size > m:
+        x = jnp.pad(x, pad, mode="edge") if fill is None else jnp.pad(x, pad, constant_values=fill)
+    x = x.reshape(x.shape[:axis] + (n, size) + x.shape[axis + 1 :])
+    return jnp.moveaxis(x, axis, 0)
+
+
+def join(y, m: int, axis: int = -1):
+    """The inverse of :func:`split`: chunks ``(n, ..., size, ...)`` (``size`` at
+    ``axis`` of each chunk) joined along ``axis`` and cut to its first ``m`` entries."""
+    axis = axis % (y.ndim - 1)
+    y = jnp.moveaxis(y, 0, axis)  # (..., n, size, ...)
+    y = y.reshape(y.shape[:axis] + (y.shape[axis] * y.shape[axis + 1],) + y.shape[axis + 2 :])
+    return jax.lax.slice_in_dim(y, 0, m, axis=axis)
+
+
+def over_devices(run, n_dev: int, out_spec: str | None = AXIS):
+    """``run(xs, const)`` with the pytree ``xs`` split along its leading axis (a
+    multiple of ``n_dev``) over ``n_dev`` devices (``jax.shard_map`` over the mesh axis
+    :data:`AXIS`) and ``const`` on every device; ``out_spec``: the output's partition,
+    :data:`AXIS` (its leading axis, like ``xs``) or ``None`` (replicated: ``run`` sums
+    over devices itself, e.g. ``jax.lax.psum(x, AXIS)``). ``n_dev <= 1``: ``run``."""
+    if n_dev <= 1:
+        return run
+    from jax.sharding import PartitionSpec as Spec
+
+    mesh = jax.make_mesh((n_dev,), (AXIS,), devices=jax.devices()[:n_dev], axis_types=(jax.sharding.AxisType.Auto,))
+    return jax.shard_map(run, mesh=mesh, in_specs=(Spec(AXIS), Spec()), out_specs=Spec(out_spec), check_vma=False)
+
+
+def _deal(x, n_dev: int, back: bool = False):
+    """Chunks ``(n, ...)`` reordered so that device ``d`` of :func:`over_devices` holds
+    chunks ``d, d + n_dev, d + 2 n_dev...`` (``back``: the inverse order)."""
+    a, b = (n_dev, x.shape[0] // n_dev) if back else (x.shape[0] // n_dev, n_dev)
+    return jnp.swapaxes(x.reshape((a, b) + x.shape[1:]), 0, 1).reshape(x.shape)
+
+
+def map_chunks(
+    fn,
+    xs: Any,
+    m: int,
+    n: int,
+    size: int,
+    in_axis: int = -1,
+    out_axis: int = -1,
+    devices: int = 1,
+    deal: bool = False,
+    const: Any = None,
+):
+    """``fn(chunk)`` (``fn(chunk, const)`` when ``const`` is given) over ``n`` chunks
+    of ``size`` of the pytree ``xs`` (every leaf has ``m`` entries along ``in_axis``;
+    padded by repeating the last) under ``lax.map``, its outputs (``size`` entries
+    along ``out_axis``) joined and cut to ``m``.
+
+    ``devices > 1`` (``n`` a multiple of it): the chunks split over that many devices
+    (:func:`over_devices`), in contiguous blocks or, with ``deal``, dealt round-robin
+    (for work packed at the front, such as compacted events). ``const`` is then on
+    every device: pass there what ``fn`` needs of an array that another sharded map
+    made (closing over it would mix two meshes)."""
+    tm = jax.tree_util.tree_map
+    chunks = tm(lambda x: split(x, n, size, in_axis), xs)
+
+    def over(xs, c):
+        return jax.lax.map(fn if const is None else (lambda x: fn(x, c)), xs)
+
+    if devices > 1:
+        if n % devices:
+            raise ValueError(f"map_chunks: {n} chunks do not split over {devices} devices")
+        if deal:
+            chunks = tm(lambda x: _deal(x, devices), chunks)
+        out = over_devices(over, devices)(chunks, const)
+        if deal:
+            out = tm(lambda y: _deal(y, devices, back=True), out)
+    elif n == 1:  # no loop
+        one = tm(lambda x: x[0], chunks)
+        out = tm(lambda y: y[None], fn(one) if const is None else fn(one, const))
+    else:
+        out = over(chunks, const)
+    return tm(lambda y: join(y, m, out_axis), out)
