@@ -16,7 +16,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-AXIS = "chunks"  # the device axis of :func:`over_devices` (for collectives such as ``psum``)
+AXIS = "tiles"  # the device axis of :func:`over_devices` (for collectives such as ``psum``)
 
 
 def equal_chunks(m: int, most: int, multiple: int = 1) -> tuple[int, int]:
