@@ -60,18 +60,14 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     ``opts.tile_rays`` (each under ``jax.checkpoint``) sharded over
     ``opts.devices``, and each tile is added into the images as it is traced, so
     that memory holds the images and one tile, not every ray's radiance. ``needed
-    (M,)`` (no gradient): the rays not needed give zero radiance; where they come
-    after the needed ones of their tile (as a prefix, e.g. work packed at the front)
-    they cost nothing."""
+    (M,)`` (no gradient): a tile none of whose rays is needed is skipped."""
     st = opts.settings
     M, k = weight.shape
     c = max(1, min(M, opts.tile_rays))
     n_dev = opts.devices
     n_tiles = math.ceil(M / c / n_dev) * n_dev
     xyt = split(xy, n_tiles, c)
-    # Per tile, the rays up to its last needed one are traced.
-    need = split(needed, n_tiles, c, fill=False)
-    live = jnp.max(jnp.where(need, jnp.arange(1, c + 1, dtype=jnp.int32), 0), 1)
+    live = jnp.any(split(needed, n_tiles, c, fill=False), 1)
     pix = split(pixel, n_tiles, c, fill=0)
     wt = split(weight, n_tiles, c, axis=0, fill=0)
 
@@ -79,13 +75,16 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         kinds = prepare(scene)
 
         @jax.checkpoint
-        def radiance(x, live):
-            o, d = rays_through(scene.camera, x, st.width, st.height)
-            return trace(scene, kinds, o, d, spread, opts, live=live).T
+        def radiance(x, on):
+            def go(x):
+                o, d = rays_through(scene.camera, x, st.width, st.height)
+                return trace(scene, kinds, o, d, spread, opts).T
+
+            return jax.lax.cond(on, go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
 
         def tile(acc, args):
-            x, live, p, w = args
-            f = radiance(x, live)  # (c, 3)
+            x, on, p, w = args
+            f = radiance(x, on)  # (c, 3)
             return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
 
         acc, _ = jax.lax.scan(tile, jnp.zeros((k, n_pixels, 3), scene.dtype), xs)

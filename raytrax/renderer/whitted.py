@@ -157,10 +157,8 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
 
 
-def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None, live=None):
+def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
     """Radiance ``(3, n)`` of camera rays ``o, d (3, n)`` (``sel (n,)``: see :func:`shade`).
-    ``live`` (a traced integer, default ``n``): only the first ``live`` rays are traced,
-    the others give zero radiance, and sub-tiles of rays past ``live`` cost nothing.
 
     A wavefront over depth (a ``lax.scan``; every depth runs the same compiled
     body): the live samples form a prefix of a ray queue
@@ -177,12 +175,7 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None, live
     S = -(-n // (m // B))  # sub-tiles: enough for n samples of B rays (and n camera rays)
     # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
     # of one (S, 10, m) buffer; its sample's id in an (S, m) buffer (n: none).
-    if live is None:
-        count0, thr = jnp.asarray(n, jnp.int32), jnp.ones_like(o)
-    else:
-        count0 = jnp.clip(jnp.asarray(live, jnp.int32), 0, n)
-        thr = jnp.broadcast_to((jnp.arange(n, dtype=jnp.int32) < count0).astype(dt), o.shape)
-    rays0 = jnp.concatenate([o, d, thr, jnp.zeros((1, n), dt)])
+    rays0 = jnp.concatenate([o, d, jnp.ones_like(o), jnp.zeros((1, n), dt)])
     state = (C_.to_tiles(rays0, S, m, 0.0), C_.to_tiles(jnp.arange(n, dtype=jnp.int32), S, m, n))
     empty = (jnp.zeros((S, 10, m), dt), jnp.full((S, m), n, jnp.int32))
 
@@ -235,5 +228,7 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None, live
         (nxt, cnt, radiance), _ = jax.lax.scan(tile_body, init, (jnp.arange(S, dtype=jnp.int32),) + cur)
         return (nxt, cnt * B, radiance), None
 
-    (_, _, radiance), _ = jax.lax.scan(depth_body, (state, count0, jnp.zeros_like(o)), jnp.arange(st.max_depth + 1))
+    (_, _, radiance), _ = jax.lax.scan(
+        depth_body, (state, jnp.asarray(n, jnp.int32), jnp.zeros_like(o)), jnp.arange(st.max_depth + 1)
+    )
     return radiance
