@@ -47,6 +47,7 @@ _LAZY = {
     "save_image": "imageio",
     "load_image": "imageio",
     "enable_compilation_cache": "executables",
+    "release_memory_after_compile": "memory",
 }
 
 __all__ = sorted(_LAZY) + ["__version__"]

@@ -8,10 +8,14 @@ import math
 import jax
 
 from ..edges import EdgeOptions
+from ..memory import release_by_default
 from ..scene import Scene
 from .edge_mode import render_edges_jit
 from .options import RAYS_PER_TILE, RenderOptions
 from .tiles import render_image_jit
+
+# A render's first call compiles a large program: hand its memory back afterwards.
+release_by_default()
 
 
 def render(
