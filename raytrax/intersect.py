@@ -143,6 +143,16 @@ def no_hit(idx, o, d, t0):
     return z, jnp.zeros_like(o), jnp.zeros((2,) + z.shape, z.dtype), jnp.zeros((2,) + z.shape, z.dtype)
 
 
+def nearest_kind(kinds: list[Kind], ray, tmin=0.0):
+    """The nearest hit over ``kinds`` of the rays ``ray`` (the six component rows
+    ``ox, oy, oz, dx, dy, dz``, each ``(n,)``): per ray, the position in ``kinds`` of
+    the kind hit first (ties: the earlier kind), its distance (``inf``: no hit), and
+    each kind's nearest primitive index (a tuple of ``(n,)``)."""
+    ts, ids = zip(*[closest_kind(k, ray, tmin) for k in kinds])
+    ts = jnp.stack(ts)
+    return jnp.argmin(ts, 0), jnp.min(ts, 0), ids
+
+
 def closest_hit(kinds: list[Kind], o, d) -> Hit:
     """Nearest hit of rays ``o, d (3, n)`` (``d`` unit) over all kinds; differentiable
     in the hit quantities (see module docstring)."""
@@ -158,10 +168,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             jnp.zeros((n,), jnp.int32),
         )
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
-    ts, ids = zip(*[closest_kind(k, ray, 0.0) for k in kinds])
-    ts = jnp.stack(ts)
-    which = jnp.argmin(ts, 0)
-    t0 = jnp.min(ts, 0)
+    which, t0, ids = nearest_kind(kinds, ray)
     # Reverse mode (integrator's shading checkpoint) keeps these instead of searching again.
     which, t0, ids = checkpoint_name((which, t0, ids), "raytrax_search")
 

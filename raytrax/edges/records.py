@@ -13,7 +13,7 @@ from .. import textures as tx
 from .. import vec as V
 from ..camera import rays_through
 from ..chunks import equal_chunks, map_chunks
-from ..intersect import closest_kind, no_hit, offset_scale
+from ..intersect import nearest_kind, no_hit, offset_scale
 from ..materials import refracts_dominantly
 from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
@@ -26,19 +26,18 @@ def search(scene, kinds, off, o, d, tmax=None):
     """Global id (-1: none) and distance of the first primitive along rays ``o, d``
     (closer than ``tmax`` when given)."""
     n = o.shape[1]
-    ray = (o[0], o[1], o[2], d[0], d[1], d[2])
-    best_t = jnp.full((n,), jnp.inf, o.dtype)
     best_id = jnp.full((n,), -1, jnp.int32)
-    for k in kinds:
-        t, idx = closest_kind(k, ray, 0.0)
+    if not kinds:
+        return best_id, jnp.full((n,), jnp.inf, o.dtype)
+    which, best_t, ids = nearest_kind(kinds, (o[0], o[1], o[2], d[0], d[1], d[2]))
+    hit = jnp.isfinite(best_t)
+    for j, k in enumerate(kinds):
         start, _, per = kind_ids(off, k)
-        gid = start + per * idx
+        gid = start + per * ids[j]
         if per > 1:  # which face of the primitive (a box's)
             group = scene.prims[k.spec.field]
-            gid = gid + k.spec.edge_face(group, idx, o, d, jnp.where(jnp.isfinite(t), t, 0.0))
-        better = t < best_t
-        best_t = jnp.where(better, t, best_t)
-        best_id = jnp.where(better, gid, best_id)
+            gid = gid + k.spec.edge_face(group, ids[j], o, d, jnp.where(hit, best_t, 0.0))
+        best_id = jnp.where(hit & (which == j), gid, best_id)
     if tmax is not None:
         best_id = jnp.where(best_t < tmax, best_id, -1)
     return best_id, best_t
