@@ -23,11 +23,12 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     mode holds one tile's rays at a time), sharded over ``n_dev`` devices
     (``jax.shard_map``; the number of tiles must be a multiple of ``n_dev``)."""
 
-    def run(scene, xs, const):
+    def run(xs, scene_const):
+        scene, const = scene_const
         kinds = prepare(scene)
         return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
 
-    return over_devices(lambda xs, sc: run(sc[0], xs, sc[1]), n_dev)(xs, (scene, const))
+    return over_devices(run, n_dev)(xs, (scene, const))
 
 
 def render_image(scene: Scene, opts: RenderOptions, key):
@@ -71,7 +72,8 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     pix = split(pixel, n_tiles, c, fill=0)
     wt = split(weight, n_tiles, c, axis=0, fill=0)
 
-    def run(scene, xs, spread):
+    def run(xs, scene_spread):
+        scene, spread = scene_spread
         kinds = prepare(scene)
 
         @jax.checkpoint
@@ -90,7 +92,7 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         acc, _ = jax.lax.scan(tile, jnp.zeros((k, n_pixels, 3), scene.dtype), xs)
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
-    return over_devices(lambda xs, sc: run(sc[0], xs, sc[1]), n_dev, None)((xyt, live, pix, wt), (scene, spread))
+    return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
 
 
 render_image_jit = eqx.filter_jit(render_image)
