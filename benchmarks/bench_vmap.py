@@ -7,7 +7,11 @@ as a loop of single renders (both jitted and warmed up first), and the script
 prints the time per image of each and their ratio, with process CPU time beside
 wall time (the CPU time is the steadier figure on a shared machine).
 
-    python benchmarks/bench_vmap.py [--size 160x120] [--spp 4] [--batch 8] [--repeat 3]
+With ``--grad`` the same is done for the gradient of the image's mean with
+respect to the parameter (``jax.vmap(jax.grad(...))`` against a loop of
+``jax.grad``).
+
+    python benchmarks/bench_vmap.py [--size 160x120] [--spp 4] [--batch 8] [--repeat 3] [--grad]
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ def main(argv=None):
     ap.add_argument("--depth", type=int, default=6)
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--grad", action="store_true", help="time gradients of the image mean instead of renders")
     a = ap.parse_args(argv)
     W, H = (int(x) for x in a.size.split("x"))
     s = physical_scene(W, H, a.spp, a.depth)
@@ -68,11 +73,15 @@ def main(argv=None):
             s.lights.position[0][None] + jnp.stack([2.0 * u - 1.0, 0.0 * u, 0.0 * u], 1),
         ),
     }
-    print(f"raytrax {rt.__version__}, jax {jax.__version__}, {W}x{H} spp {a.spp} depth {a.depth}, batch {N}")
+    what = "gradient of the image mean" if a.grad else "render"
+    print(f"raytrax {rt.__version__}, jax {jax.__version__}, {W}x{H} spp {a.spp} depth {a.depth}, batch {N}: {what}")
     print(f"{'parameter':10s} {'loop s/img':>11s} {'vmap s/img':>11s} {'vmap/loop':>10s}   (wall; CPU in brackets)")
     for name, (make, xs) in cases.items():
-        one = jax.jit(lambda x, make=make: rt.render(make(x)))
-        many = jax.jit(jax.vmap(lambda x, make=make: rt.render(make(x))))
+        if a.grad:
+            one = jax.jit(jax.grad(lambda x, make=make: jnp.sum(rt.render(make(x))) / (W * H * 3)))
+        else:
+            one = jax.jit(lambda x, make=make: rt.render(make(x)))
+        many = jax.jit(jax.vmap(one))
         diff = float(np.abs(np.stack([np.asarray(one(x)) for x in xs]) - np.asarray(many(xs))).max())
         tl = _time(lambda: [one(x) for x in xs], a.repeat)
         tv = _time(lambda: many(xs), a.repeat)

@@ -22,6 +22,7 @@ from jax.ad_checkpoint import checkpoint_name
 from . import bvh as B
 from . import shapes as S
 from . import vec as V
+from .branching import any_in_batch
 from .shapes.triangles import tri_hit, tri_soa, tri_t
 
 BLOCK = 128
@@ -185,7 +186,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             # Under a cond: skipped when no ray hit this kind, and its inputs and outputs
             # are materialised (XLA:CPU would otherwise fuse the search into every
             # consumer of the recomputation and repeat it per output component).
-            tk, nk, uvk, rk = jax.lax.cond(jnp.any(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
+            tk, nk, uvk, rk = jax.lax.cond(any_in_batch(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
             t = jnp.where(sel, tk, t)
             nrm = jnp.where(sel[None], nk, nrm)
             uv = jnp.where(sel[None], uvk, uv)
@@ -206,7 +207,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
 
     # Also under a cond, so that every field of the hit (validity included) is read
     # from materialised search results rather than re-searched inside its consumers.
-    return jax.lax.cond(jnp.any(t0 < INF), combine, no_ray, which, t0, ids, o, d)
+    return jax.lax.cond(any_in_batch(t0 < INF), combine, no_ray, which, t0, ids, o, d)
 
 
 def _crossings(k: Kind, ray2, P, tmax):

@@ -2,9 +2,11 @@
 
 One batch varies every kind of parameter at once (an IOR, a colour, a radius,
 the camera position and a light position), so one vmapped compilation and one
-single-render compilation cover them all. Under vmap the integrator's dead-ray
-skipping must stay a branch (``compaction.any_in_batch``); the images must be
-the loop's to float32 rounding.
+single-render compilation cover them all (such a batch is rendered as a
+sequence of single renders; a batch over lights only, batched inside the
+render, is tests/test_devices.py::test_vmap_over_light_positions). The images
+must be the loop's to float32 rounding, and gradients through a batch each
+member's own.
 """
 
 from __future__ import annotations
@@ -62,3 +64,21 @@ def test_vmap_over_every_kind_of_parameter_matches_a_loop():
     # The members differ from each other (the batch really varies), and each equals its loop render.
     assert np.abs(loop[0] - loop[1]).max() > 0.05 and np.abs(loop[0] - loop[2]).max() > 0.05
     np.testing.assert_allclose(batched, loop, rtol=0, atol=2e-5)
+
+
+def test_gradient_of_a_vmapped_render_matches_a_loop_of_gradients():
+    """Reverse mode through a batch (``jax.grad`` of a sum over ``jax.vmap``) gives
+    each member's own gradient. A batch of radii is rendered as a sequence of
+    single renders and differentiated through the plain render's JVP; the
+    renderer's skipped-work conds must stay conds there (a cond whose predicate
+    is batched becomes a select whose ``stop_gradient`` JAX cannot transpose)."""
+
+    def mean_image(r):
+        s = eqx.tree_at(lambda s: s.spheres.radius, BASE, BASE.spheres.radius.at[1].set(r))
+        return jnp.mean(rt.render(s, width=12, height=9, max_depth=2))
+
+    radii = jnp.array([0.6, 0.7], jnp.float32)
+    loop = np.array([float(jax.jit(jax.grad(mean_image))(r)) for r in radii])
+    batched = np.asarray(jax.jit(jax.grad(lambda rs: jnp.sum(jax.vmap(mean_image)(rs))))(radii))
+    assert np.all(np.isfinite(batched)) and np.all(np.abs(loop) > 1e-3)
+    np.testing.assert_allclose(batched, loop, rtol=1e-4, atol=1e-7)

@@ -62,7 +62,11 @@ def render(
     naming the option).
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);
-    differentiable with respect to every float leaf of ``scene``.
+    differentiable with respect to every float leaf of ``scene``. Under
+    ``jax.vmap`` a batch over light parameters only is batched inside the render
+    (the camera rays and their hits are shared); a batch over anything else is
+    rendered as a ``lax.map`` of single renders, at a loop's cost per image (see
+    ``docs/scaling.md``).
     """
     over = {
         k: v

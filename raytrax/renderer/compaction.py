@@ -19,20 +19,6 @@ import jax
 import jax.numpy as jnp
 
 
-@jax.custom_batching.custom_vmap
-def any_in_batch(x):
-    """``jnp.any(x)``; under ``jax.vmap`` the *unbatched* ``any`` over the whole
-    batch, so that a ``lax.cond`` on it stays a branch (run for every batch
-    member when any needs it) instead of becoming a select that runs both sides."""
-    return jnp.any(x)
-
-
-@any_in_batch.def_vmap
-def _any_in_batch_vmap(axis_size, in_batched, x):
-    del axis_size, in_batched
-    return jnp.any(x), False
-
-
 def to_tiles(a, S: int, m: int, fill):
     """``a ([r,] n)`` as ``S`` sub-tiles of ``m``: ``(S, [r,] m)``, padded with ``fill``."""
     n = a.shape[-1]

@@ -31,7 +31,7 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     return over_devices(run, n_dev)(xs, (scene, const))
 
 
-def render_image(scene: Scene, opts: RenderOptions, key):
+def _render_image(scene: Scene, opts: RenderOptions, key):
     st = opts.settings
     W, H, spp = st.width, st.height, st.spp
     P = W * H
@@ -93,6 +93,56 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
+
+
+def _only_lights_batched(in_batched) -> bool:
+    scene_b, key_b = in_batched
+    rest = eqx.tree_at(lambda s: s.light_sets, scene_b, {})
+    return not any(jax.tree.leaves((rest, key_b)))
+
+
+def render_image(scene: Scene, opts: RenderOptions, key):
+    """The ``(H, W, 3)`` image of ``scene`` (the tiles of :func:`map_tiles`).
+
+    Under ``jax.vmap`` a batch whose only batched leaves are light parameters
+    is batched inside (camera rays and their hits are shared by the batch);
+    any other batch is rendered as a ``lax.map`` of single renders, which costs
+    per image what a loop of renders costs, where batching every ray costs
+    about twice as much (the dead-ray skipping and the queue's scatters run for
+    the whole batch). Derivatives go through the plain render (a
+    ``jax.custom_jvp`` whose rule is the render's own JVP), so ``jax.grad``,
+    ``jax.jacfwd`` and their ``vmap`` are those of the plain render."""
+
+    def plain(scene, key):
+        return _render_image(scene, opts, key)
+
+    @jax.custom_batching.custom_vmap
+    def batch_aware(scene, key):
+        return plain(scene, key)
+
+    @batch_aware.def_vmap
+    def _batched(axis_size, in_batched, scene, key):
+        if _only_lights_batched(in_batched):
+            axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
+            return jax.vmap(plain, in_axes=axes)(scene, key), True
+        leaves, tdef = jax.tree.flatten((scene, key))
+        flags = jax.tree.leaves(in_batched)
+
+        def one(batched_leaves):
+            it = iter(batched_leaves)
+            return plain(*jax.tree.unflatten(tdef, [next(it) if f else x for x, f in zip(leaves, flags)]))
+
+        return jax.lax.map(one, [x for x, f in zip(leaves, flags) if f]), True
+
+    @jax.custom_jvp
+    def image(scene, key):
+        return batch_aware(scene, key)
+
+    @image.defjvp
+    def _image_jvp(primals, tangents):
+        return jax.jvp(plain, primals, tangents)
+
+    return image(scene, key)
 
 
 render_image_jit = eqx.filter_jit(render_image)

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
 
 from .. import vec as V
+from ..branching import any_in_batch
 from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
 from ..materials import SHADING_MODELS, facing, interface, material_rows, refract
@@ -121,7 +122,7 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
         cat = (lambda xs: xs[0]) if L == 1 else (lambda xs: jnp.concatenate(xs, -1))
         any_lit = functools.reduce(jnp.logical_or, lit)
         sh_all = jax.lax.cond(
-            jnp.any(any_lit),
+            any_in_batch(any_lit),
             shadow,
             no_shadow,
             cat([p_out] * L),
@@ -222,7 +223,7 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
                 branch = jnp.where(last, len(gs), 0) + (jnp.where(depth == 0, 0, 1) if B > 1 else 0)
                 return jax.lax.switch(branch, fns)
 
-            return jax.lax.cond(C_.any_in_batch(j * m < count), live, lambda tc: tc, tc), None
+            return jax.lax.cond(any_in_batch(j * m < count), live, lambda tc: tc, tc), None
 
         init = (empty, jnp.zeros((), jnp.int32), radiance)
         (nxt, cnt, radiance), _ = jax.lax.scan(tile_body, init, (jnp.arange(S, dtype=jnp.int32),) + cur)
