@@ -9,7 +9,11 @@ OpenImageIO until an image is read or written. ``from raytrax import fit`` and
 
 import importlib
 
+from . import cpu_devices as _cpu_devices
+
 __version__ = "0.1.0"
+
+_cpu_devices.request()  # one jax CPU device per core, if jax has not started (raytrax.cpu_devices)
 
 # public name -> submodule that defines it
 _LAZY = {
@@ -47,6 +51,7 @@ _LAZY = {
     "save_image": "imageio",
     "load_image": "imageio",
     "enable_compilation_cache": "executables",
+    "compiler_options": "compile_options",
     "release_memory_after_compile": "memory",
 }
 

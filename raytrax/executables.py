@@ -226,6 +226,7 @@ def compiled_render(scene, use_cache: bool = True):
             return compiled, leaves, path
         forget(path)  # unreadable or for other arguments
 
+    from .compile_options import compiler_options
     from .renderer import render
 
     def fn(leaves):
@@ -241,7 +242,7 @@ def compiled_render(scene, use_cache: bool = True):
 
     monitoring.register_event_listener(on_event)
     try:
-        compiled = jax.jit(fn).lower(leaves).compile()
+        compiled = jax.jit(fn, compiler_options=compiler_options()).lower(leaves).compile()
     finally:
         monitoring.unregister_event_listener(on_event)
     # Only a program compiled here is stored: one that jax's cache deserialized

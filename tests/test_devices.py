@@ -24,18 +24,62 @@ def test_four_host_devices_available():
 
 
 def test_sharded_image_equals_single_device(scene):
-    one = rt.render(scene, tile_rays=64)
+    one = rt.render(scene, tile_rays=64, devices=1)
     many = rt.render(scene, tile_rays=64, devices="all")
-    assert many.shape == one.shape
+    default = rt.render(scene, tile_rays=64)  # over the CPU devices: as many as there are tiles
+    assert many.shape == one.shape == default.shape
     np.testing.assert_allclose(np.asarray(many), np.asarray(one), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(default), np.asarray(one), rtol=0, atol=1e-6)
     assert float(one.mean()) > 0.01
+
+
+def test_default_devices_are_the_cpu_devices_up_to_the_tiles():
+    from raytrax.renderer.api import cpu_devices_in_use
+
+    assert cpu_devices_in_use() == jax.local_device_count()  # the CPU backend (conftest)
+
+
+_PROBE = "import raytrax, jax; print(jax.local_device_count())"
+
+
+def _devices_in_fresh_process(code, **env):
+    import subprocess
+    import sys
+
+    clean = {
+        k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES", "RAYTRAX_CPU_DEVICES")
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120, check=True
+    )
+    return int(out.stdout.split()[-1])
+
+
+def test_import_asks_jax_for_one_cpu_device_per_core():
+    from raytrax.cpu_devices import wanted
+
+    assert _devices_in_fresh_process(_PROBE, RAYTRAX_CPU_DEVICES="3") == 3
+    assert _devices_in_fresh_process(_PROBE, RAYTRAX_CPU_DEVICES="1") == 1
+    # A number chosen for jax itself, or jax already started, is left as it is.
+    assert _devices_in_fresh_process(_PROBE, RAYTRAX_CPU_DEVICES="3", JAX_NUM_CPU_DEVICES="2") == 2
+    started = "import jax, jax.numpy as jnp; jnp.zeros(1); " + _PROBE
+    assert _devices_in_fresh_process(started, RAYTRAX_CPU_DEVICES="3") == 1
+    assert wanted() >= 1
+
+
+def test_a_bad_cpu_device_count_names_the_variable(monkeypatch):
+    from raytrax.cpu_devices import wanted
+
+    monkeypatch.setenv("RAYTRAX_CPU_DEVICES", "many")
+    with pytest.raises(ValueError, match="RAYTRAX_CPU_DEVICES.*positive integer"):
+        wanted()
 
 
 def test_sharded_gradient_equals_single_device(scene):
     def loss(s, dev):
         return jnp.mean(rt.render(s, tile_rays=64, devices=dev) ** 2)
 
-    g1 = eqx.filter_grad(lambda s: loss(s, None))(scene)
+    g1 = eqx.filter_grad(lambda s: loss(s, 1))(scene)
     g4 = eqx.filter_grad(lambda s: loss(s, 4))(scene)
     np.testing.assert_allclose(g4.lights.position, g1.lights.position, rtol=1e-5, atol=1e-9)
     np.testing.assert_allclose(g4.materials.color, g1.materials.color, rtol=1e-5, atol=1e-9)

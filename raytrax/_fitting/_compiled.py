@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compile_options import filter_jit
 from ._problem import _Problem
 from ._uncertainty import _jacobian
 
@@ -30,7 +31,7 @@ def _effect(problem: _Problem, z, probe):
     return _effect_along(problem, z, probe)
 
 
-@eqx.filter_jit
+@filter_jit
 def _effect_along(problem: _Problem, z, probe):
     """:func:`_effect` for many fitted numbers: along one random direction per name."""
     w = problem.weights
@@ -56,13 +57,13 @@ def _solver_init(problem, solver, z, least_squares):
     return solver.init(fn, z, None, {}, f_struct, aux_struct, _TAGS)
 
 
-@eqx.filter_jit
+@filter_jit
 def _init(problem, solver, z, least_squares):
     """The array part of the solver's initial state (compiled)."""
     return eqx.filter(_solver_init(problem, solver, z, least_squares), eqx.is_array)
 
 
-@eqx.filter_jit
+@filter_jit
 def _step(problem, solver, z, dyn_state, least_squares):
     """One solver step (compiled): -> (new z, new state's arrays, done, result,
     loss at the new point, whether it is finite, the parameter values there)."""

@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
 import jax
 import numpy as np
 
+from ..compile_options import filter_jit
 from ._problem import _Problem
 
 #: fitted numbers up to which standard errors are computed (one forward-mode column each)
@@ -29,7 +29,7 @@ UNCERTAINTY_MAX_NUMBERS = 64
 RCOND = 1e-10
 
 
-@eqx.filter_jit
+@filter_jit
 def _jacobian(problem: _Problem, z):
     """The render at ``z`` and its forward-mode Jacobian with respect to ``z``
     (dict name -> ``(H, W, 3, *shape)``); compiled once per problem structure."""

@@ -18,6 +18,12 @@ from .tiles import render_image_jit
 release_by_default()
 
 
+def cpu_devices_in_use() -> int:
+    """Devices a render shards over by default: the CPU devices where jax's default
+    backend is the CPU, else 1."""
+    return jax.local_device_count() if jax.default_backend() == "cpu" else 1
+
+
 def render(
     scene: Scene,
     *,
@@ -45,9 +51,11 @@ def render(
     has the scene's float dtype (float32, or float64 for a float64 scene with
     x64 enabled). Row 0 is the top row.
 
-    ``devices``: ``None`` renders on the default device; ``"all"`` or an
-    integer shards the image tiles over that many of ``jax.devices()`` with
-    ``jax.shard_map`` (same image, gradients summed over devices).
+    ``devices``: an integer or ``"all"`` shards the image tiles over that many of
+    ``jax.devices()`` with ``jax.shard_map`` (same image, gradients summed over
+    devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
+    over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
+    tile; elsewhere on the default device.
     ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
 
     ``edge_gradients=True`` adds the boundary terms of the derivative (moving
@@ -76,8 +84,9 @@ def render(
         if v is not None
     }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
-    if devices is None:
-        n_dev = 1
+    if devices is None:  # the CPU's devices (one per core, raytrax.cpu_devices), as many as there are tiles
+        per_tile = max(1, min(st.width * st.height, tile_rays // st.spp))
+        n_dev = min(cpu_devices_in_use(), math.ceil(st.width * st.height / per_tile))
     elif devices == "all":
         n_dev = jax.device_count()
     elif isinstance(devices, int) and 1 <= devices <= jax.device_count():

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 
 from ..camera import cone_spread, rays_through
 from ..chunks import equal_chunks, map_chunks
+from ..compile_options import filter_jit
 from ..edges import edge_term
 from ..intersect import prepare
 from ..scene import Scene
@@ -87,4 +87,4 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     return (img + q).reshape(H, W, 3) + edge
 
 
-render_edges_jit = eqx.filter_jit(render_edges)
+render_edges_jit = filter_jit(render_edges)

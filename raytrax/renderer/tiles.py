@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import primary_rays, rays_through
-from ..chunks import AXIS, over_devices, split
+from ..chunks import AXIS, equal_chunks, over_devices, split
+from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..scene import Scene
 from .options import RenderOptions
@@ -35,9 +36,9 @@ def _render_image(scene: Scene, opts: RenderOptions, key):
     st = opts.settings
     W, H, spp = st.width, st.height, st.spp
     P = W * H
-    tile = max(1, min(P, opts.tile_rays // spp))
     n_dev = opts.devices
-    n_tiles = math.ceil(P / tile / n_dev) * n_dev
+    # The fewest tiles of at most tile_rays rays, a multiple of the devices, all of one size.
+    n_tiles, tile = equal_chunks(P, max(1, opts.tile_rays // spp), n_dev)
     pix = split(jnp.arange(P, dtype=jnp.int32), n_tiles, tile)  # the last pixel repeated as padding
     ids = jnp.arange(n_tiles, dtype=jnp.int32)
 
@@ -145,4 +146,4 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     return image(scene, key)
 
 
-render_image_jit = eqx.filter_jit(render_image)
+render_image_jit = filter_jit(render_image)
