@@ -61,7 +61,8 @@ def filter_jit(fun):
         key = jax.default_backend() if _top_level() else None
         jitted = made.get(key)
         if jitted is None:
-            jitted = made[key] = eqx.filter_jit(fun, compiler_options=None if key is None else compiler_options(key))
+            options = {} if key is None else {"compiler_options": compiler_options(key)}
+            jitted = made[key] = eqx.filter_jit(fun, **options)
         return jitted(*args, **kwargs)
 
     return call
