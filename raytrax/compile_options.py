@@ -61,8 +61,11 @@ def filter_jit(fun):
         key = jax.default_backend() if _top_level() else None
         jitted = made.get(key)
         if jitted is None:
-            options = {} if key is None else {"compiler_options": compiler_options(key)}
-            jitted = made[key] = eqx.filter_jit(fun, **options)
+            if key is None:
+                jitted = eqx.filter_jit(fun)
+            else:
+                jitted = eqx.filter_jit(fun, compiler_options=compiler_options(key))  # pyright: ignore[reportCallIssue]
+            made[key] = jitted
         return jitted(*args, **kwargs)
 
     return call
