@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import primary_rays, rays_through
-from ..chunks import AXIS, equal_chunks, over_devices, split
+from ..chunks import AXIS, deal, equal_chunks, over_devices, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..scene import Scene
@@ -22,14 +22,19 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     """``tile_fn(scene, kinds, x, const)`` for every ``x`` along the leading axis of
     the pytree ``xs`` (``lax.map``, each tile under ``jax.checkpoint`` so that reverse
     mode holds one tile's rays at a time), sharded over ``n_dev`` devices
-    (``jax.shard_map``; the number of tiles must be a multiple of ``n_dev``)."""
+    (``jax.shard_map``; the number of tiles must be a multiple of ``n_dev``). The
+    tiles are dealt to the devices in turn (device ``d`` renders tiles ``d, d + n_dev,
+    ...``), so that an image region of costly rays (glass, mirrors) is shared."""
 
     def run(xs, scene_const):
         scene, const = scene_const
         kinds = prepare(scene)
         return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
 
-    return over_devices(run, n_dev)(xs, (scene, const))
+    if n_dev <= 1:
+        return run(xs, (scene, const))
+    out = over_devices(run, n_dev)(jax.tree.map(lambda x: deal(x, n_dev), xs), (scene, const))
+    return jax.tree.map(lambda y: deal(y, n_dev, back=True), out)
 
 
 def _render_image(scene: Scene, opts: RenderOptions, key):
