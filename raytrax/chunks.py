@@ -67,7 +67,7 @@ def over_devices(run, n_dev: int, out_spec: str | None = AXIS):
     return jax.shard_map(run, mesh=mesh, in_specs=(Spec(AXIS), Spec()), out_specs=Spec(out_spec), check_vma=False)
 
 
-def deal(x, n_dev: int, back: bool = False):
+def round_robin(x, n_dev: int, back: bool = False):
     """Chunks ``(n, ...)`` reordered so that device ``d`` of :func:`over_devices` holds
     chunks ``d, d + n_dev, d + 2 n_dev...`` (``back``: the inverse order)."""
     a, b = (n_dev, x.shape[0] // n_dev) if back else (x.shape[0] // n_dev, n_dev)
@@ -106,10 +106,10 @@ def map_chunks(
         if n % devices:
             raise ValueError(f"map_chunks: {n} chunks do not split over {devices} devices")
         if deal:
-            chunks = tm(lambda x: deal(x, devices), chunks)
+            chunks = tm(lambda x: round_robin(x, devices), chunks)
         out = over_devices(over, devices)(chunks, const)
         if deal:
-            out = tm(lambda y: deal(y, devices, back=True), out)
+            out = tm(lambda y: round_robin(y, devices, back=True), out)
     elif n == 1:  # no loop
         one = tm(lambda x: x[0], chunks)
         out = tm(lambda y: y[None], fn(one) if const is None else fn(one, const))

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from ..camera import primary_rays, rays_through
-from ..chunks import AXIS, deal, equal_chunks, over_devices, split
+from ..chunks import AXIS, equal_chunks, over_devices, round_robin, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..scene import Scene
@@ -33,8 +33,8 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
 
     if n_dev <= 1:
         return run(xs, (scene, const))
-    out = over_devices(run, n_dev)(jax.tree.map(lambda x: deal(x, n_dev), xs), (scene, const))
-    return jax.tree.map(lambda y: deal(y, n_dev, back=True), out)
+    out = over_devices(run, n_dev)(jax.tree.map(lambda x: round_robin(x, n_dev), xs), (scene, const))
+    return jax.tree.map(lambda y: round_robin(y, n_dev, back=True), out)
 
 
 def _render_image(scene: Scene, opts: RenderOptions, key):
