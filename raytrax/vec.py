@@ -12,6 +12,7 @@ negative radicand gives a finite value and a zero (not NaN) gradient.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 
@@ -28,20 +29,26 @@ def min_argmin(x):
     return m, i
 
 
+def xyz(a):
+    """The components of ``a (3, ...)``: three arrays ``(...)``. One ``unstack``, whose
+    transpose is a ``stack``: indexing ``a[0]``, ``a[1]``, ``a[2]`` transposes into
+    three padded copies summed, which XLA:CPU fuses into kernels that recompute their
+    inputs once per component."""
+    return jax.lax.unstack(a)
+
+
 def dot(a, b):
     """Dot product over the leading axis: ``(3, ...) x (3, ...) -> (...)``."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    ax, ay, az = xyz(a)
+    bx, by, bz = xyz(b)
+    return ax * bx + ay * by + az * bz
 
 
 def cross(a, b):
     """Cross product over the leading axis."""
-    return jnp.stack(
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    )
+    ax, ay, az = xyz(a)
+    bx, by, bz = xyz(b)
+    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx])
 
 
 def safe_sqrt(x, tiny=0.0):
