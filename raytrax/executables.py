@@ -49,7 +49,7 @@ __all__ = [
 #: folder of the entries, inside jax's compilation cache folder
 CACHE_DIR = "raytrax-executables"
 _KEEP = 32  # newest entries kept
-_FORMAT = 1  # version of the entry layout
+_FORMAT = 2  # version of the entry layout (2: with the ids of the devices it runs on)
 _STALE_TMP_S = 3600.0  # temporary files older than this are leftovers of a killed process
 
 
@@ -148,10 +148,12 @@ def load_executable(path, leaves):
 
     try:
         with open(path, "rb") as f:
-            fmt, payload, in_tree, out_tree = pickle.load(f)
+            fmt, payload, in_tree, out_tree, device_ids = pickle.load(f)
         if fmt != _FORMAT:
             return None
-        compiled = deserialize_and_load(payload, in_tree, out_tree)
+        # The devices it was compiled for (by default jax would load it onto all of them).
+        by_id = {d.id: d for d in jax.devices()}
+        compiled = deserialize_and_load(payload, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids])
         expected = [(a.shape, a.dtype) for a in jax.tree_util.tree_leaves(compiled.args_info)]
         if expected != [(x.shape, x.dtype) for x in leaves]:
             return None
@@ -178,10 +180,11 @@ def store_executable(path, compiled) -> bool:
 
     try:
         payload, in_tree, out_tree = serialize(compiled)
+        device_ids = [d.id for d in compiled.runtime_executable().local_devices()]
         folder = os.path.dirname(path)
         os.makedirs(folder, exist_ok=True)
         with atomic_path(path, suffix=".bin") as tmp, open(tmp, "wb") as f:
-            pickle.dump((_FORMAT, payload, in_tree, out_tree), f, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump((_FORMAT, payload, in_tree, out_tree, device_ids), f, protocol=pickle.HIGHEST_PROTOCOL)
         _prune(folder)
     except Exception:  # noqa: BLE001 - e.g. XLA cannot serialize this program; nothing is cached
         return False

@@ -155,7 +155,9 @@ def test_render_matches_brute_force():
     s = _scene(v, f)
     img, img_b = rt.render(s), rt.render(_brute(s))
     assert np.asarray(img).std() > 0.05
-    np.testing.assert_array_equal(np.asarray(img), np.asarray(img_b))
+    # The hits are the same (test above, exactly); the two programs fuse the shading
+    # differently, so XLA may round a multiply-add differently: a few float32 ulps.
+    np.testing.assert_allclose(np.asarray(img), np.asarray(img_b), rtol=1e-6, atol=1e-6)
 
 
 def test_vertex_gradient_matches_brute_force():
