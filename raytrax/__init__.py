@@ -5,6 +5,10 @@ raytrax`` costs almost nothing, and ``rt.render`` imports jax and equinox, but
 not the fitting stack (optimistix, lineax) until ``rt.fit`` is used, nor
 OpenImageIO until an image is read or written. ``from raytrax import fit`` and
 ``rt.FitResult`` work as before.
+
+Importing raytrax asks jax for one CPU device per core if jax has not started yet
+(:mod:`raytrax.cpu_devices`; ``RAYTRAX_CPU_DEVICES=1`` leaves jax as it is), so that
+renders use every core.
 """
 
 import importlib
