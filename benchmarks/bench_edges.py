@@ -143,7 +143,7 @@ def accuracy(a):
 
 def _compiled(fn, q0):
     t = time.perf_counter()
-    c = jax.jit(fn).lower(q0).compile()
+    c = jax.jit(fn, compiler_options=rt.compiler_options()).lower(q0).compile()  # as raytrax's own jits
     ct = time.perf_counter() - t
     times = []
     for _ in range(3):
