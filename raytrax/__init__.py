@@ -8,16 +8,19 @@ OpenImageIO until an image is read or written. ``from raytrax import fit`` and
 
 Importing raytrax asks jax for one CPU device per core if jax has not started yet
 (:mod:`raytrax.cpu_devices`; ``RAYTRAX_CPU_DEVICES=1`` leaves jax as it is), so that
-renders use every core.
+renders use every core, and for XLA's faster-compiling CPU loop emitters
+(:mod:`raytrax.compile_options`; ``RAYTRAX_XLA_FLAGS=0`` leaves ``XLA_FLAGS`` as it is).
 """
 
 import importlib
 
+from . import compile_options as _compile_options
 from . import cpu_devices as _cpu_devices
 
 __version__ = "0.1.0"
 
 _cpu_devices.request()  # one jax CPU device per core, if jax has not started (raytrax.cpu_devices)
+_compile_options.request()  # XLA's faster-compiling CPU loop emitters, likewise (raytrax.compile_options)
 
 # public name -> submodule that defines it
 _LAZY = {

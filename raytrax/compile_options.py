@@ -1,37 +1,79 @@
-"""The XLA options raytrax compiles with, for your own ``jax.jit`` as well.
+"""The XLA options raytrax compiles with, for the whole process or your own ``jax.jit``.
 
 On CPU, XLA's default loop emitters (the MLIR fusion emitters) take 1.3-2x as
 long to compile raytrax's programs as the older emitters (the forward render of
 a ten-object scene: 3.3-3.6 s against 1.8 s; its ``value_and_grad``: 12.6-13.8 s
-against 9.4-9.5 s), and the compiled renders run as fast either way (``benchmarks/bench_speed.py``
-measures both). raytrax's own compiled entry points (:func:`raytrax.render`,
-the fitting helpers, the CLI) use :func:`compiler_options`; pass it to the
-``jax.jit`` (or ``eqx.filter_jit``) that wraps a render in your code::
+against 9.4-9.5 s; a first eager ``jax.grad``: 18.9 s against 11.4 s), and the
+compiled renders run as fast either way (``benchmarks/bench_speed.py``).
+
+``import raytrax`` adds ``--xla_cpu_use_fusion_emitters=false`` to ``XLA_FLAGS``
+(:func:`request`) if jax's backends have not started, ``XLA_FLAGS`` does not set
+that option already, and jaxlib is a version the option was checked with
+(:data:`CHECKED_JAXLIB`; XLA stops the process on a flag it does not know). Every
+compilation of the process then uses it, yours included. ``RAYTRAX_XLA_FLAGS=0``
+leaves ``XLA_FLAGS`` alone. Where the flag could not be set (jax had started),
+raytrax's own compiled entry points (:func:`raytrax.render`, the fitting
+helpers, the CLI) still pass :func:`compiler_options`; give it to the
+``jax.jit`` that wraps a render in your code::
 
     step = jax.jit(jax.value_and_grad(loss), compiler_options=rt.compiler_options())
-
-or set it for the whole process before jax starts, with the environment
-variable ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``.
 """
 
 from __future__ import annotations
 
 import functools
+import os
+import sys
 from typing import Any
 
 CPU_OPTIONS: dict[str, Any] = {"xla_cpu_use_fusion_emitters": False}
 """XLA debug options for the CPU backend (the faster-compiling loop emitters)."""
 
+CHECKED_JAXLIB = ((0, 10),)
+"""jaxlib (major, minor) versions whose XLA has the options of :data:`CPU_OPTIONS`."""
+
+ENV = "RAYTRAX_XLA_FLAGS"
+
+
+def jaxlib_checked() -> bool:
+    """Whether the installed jaxlib is one of :data:`CHECKED_JAXLIB` (without importing it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        major, minor = (int(p) for p in version("jaxlib").split(".")[:2])
+    except (PackageNotFoundError, ValueError):
+        return False
+    return (major, minor) in CHECKED_JAXLIB
+
+
+def request() -> bool:
+    """Add :data:`CPU_OPTIONS` to ``XLA_FLAGS`` for this process when it is still
+    free to (see the module docstring). Returns whether it did. Does not import jax."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if os.environ.get(ENV, "1") == "0" or "xla_cpu_use_fusion_emitters" in flags or not jaxlib_checked():
+        return False
+    if "jax" in sys.modules:  # only before jax's backends start: XLA reads its flags then
+        try:
+            from jax._src import xla_bridge
+
+            if xla_bridge.backends_are_initialized():
+                return False
+        except Exception:  # pragma: no cover - another jax version: leave it alone
+            return False
+    os.environ["XLA_FLAGS"] = (flags + " --xla_cpu_use_fusion_emitters=false").strip()
+    return True
+
 
 def compiler_options(backend: str | None = None) -> dict[str, Any]:
     """XLA options for compiling raytrax programs on ``backend`` (default: jax's
-    default backend): :data:`CPU_OPTIONS` on ``"cpu"``, none elsewhere. A new dict,
+    default backend): :data:`CPU_OPTIONS` on ``"cpu"`` with a checked jaxlib, none
+    elsewhere. A new dict,
     for ``jax.jit(..., compiler_options=...)``."""
     import jax
 
     if backend is None:
         backend = jax.default_backend()
-    return dict(CPU_OPTIONS) if backend == "cpu" else {}
+    return dict(CPU_OPTIONS) if backend == "cpu" and jaxlib_checked() else {}
 
 
 def _top_level() -> bool:

@@ -72,3 +72,21 @@ def jittered_central_differences(loss, q0, step, spp, keys):
         ]
     )
     return fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
+
+
+_JAX_SETUP = ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES", "RAYTRAX_CPU_DEVICES", "RAYTRAX_XLA_FLAGS")
+
+
+def python_output(code: str, **env) -> str:
+    """stdout of ``python -c code`` in a fresh interpreter whose environment has none
+    of the jax and raytrax setup variables of this one (the suite's conftest sets
+    some), plus ``env``."""
+    import os
+    import subprocess
+    import sys
+
+    clean = {k: v for k, v in os.environ.items() if k not in _JAX_SETUP}
+    out = subprocess.run(
+        [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120, check=True
+    )
+    return out.stdout

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import python_output
 
 import raytrax as rt
 
@@ -43,16 +44,7 @@ _PROBE = "import raytrax, jax; print(jax.local_device_count())"
 
 
 def _devices_in_fresh_process(code, **env):
-    import subprocess
-    import sys
-
-    clean = {
-        k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES", "RAYTRAX_CPU_DEVICES")
-    }
-    out = subprocess.run(
-        [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120, check=True
-    )
-    return int(out.stdout.split()[-1])
+    return int(python_output(code, **env).split()[-1])
 
 
 def test_import_asks_jax_for_one_cpu_device_per_core():
