@@ -85,8 +85,8 @@ def render(
     }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
     if devices is None and edge_gradients:
-        # Edge mode sharded over the CPU devices ran 7x slower than on one (the cause is
-        # not found yet; docs/scaling.md): it renders on one unless asked.
+        # Edge mode sharded over two CPU devices measured no faster than on one (its
+        # search runs many small kernels) and compiles longer: one unless asked.
         n_dev = 1
     elif devices is None:  # the CPU's devices (one per core, raytrax.cpu_devices), as many as there are tiles
         per_tile = max(1, min(st.width * st.height, tile_rays // st.spp))
