@@ -53,8 +53,15 @@ def wanted() -> int:
 def request() -> int | None:
     """Ask jax for :func:`wanted` CPU devices if it is still free to choose (see the
     module docstring). Returns the number asked for, or None where it left jax as it
-    was. Does not import jax."""
-    n = wanted()
+    was (also when ``$RAYTRAX_CPU_DEVICES`` is not a positive integer: a warning).
+    Does not import jax."""
+    try:
+        n = wanted()
+    except ValueError as e:  # at import: a warning, not a traceback; jax keeps its default
+        import warnings
+
+        warnings.warn(f"{e}; using jax's default", stacklevel=3)
+        return None
     if n <= 1 or "JAX_NUM_CPU_DEVICES" in os.environ:
         return None
     if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):

@@ -65,6 +65,13 @@ def test_a_bad_cpu_device_count_names_the_variable(monkeypatch):
     monkeypatch.setenv("RAYTRAX_CPU_DEVICES", "many")
     with pytest.raises(ValueError, match="RAYTRAX_CPU_DEVICES.*positive integer"):
         wanted()
+    # At import it is a warning, and jax keeps its single CPU device (no traceback from the CLI).
+    code = "import warnings; warnings.simplefilter('error'); " + _PROBE
+    import subprocess
+
+    with pytest.raises(subprocess.CalledProcessError):
+        python_output(code, RAYTRAX_CPU_DEVICES="many")  # the warning, turned into an error
+    assert _devices_in_fresh_process(_PROBE, RAYTRAX_CPU_DEVICES="many") == 1
 
 
 def test_sharded_gradient_equals_single_device(scene):
