@@ -13,10 +13,10 @@ Inside a tile, each camera sample carries up to ``branches`` specular branches:
 * the ``2 * b`` children of a sample are cut back to its ``branches`` heaviest
   (``lax.top_k`` on the channel-max throughput), so the work per depth is
   bounded by ``branches`` rays per sample and never grows as ``2^depth``;
-* the samples with a live child (non-zero throughput) are written, in order,
-  to the front of the next depth's ray queue (:mod:`~raytrax.renderer.compaction`),
-  which is processed in sub-tiles; the sub-tiles past the live count are
-  skipped (``lax.cond``): paths that ended at a diffuse surface cost nothing more;
+* the samples with a live child (non-zero throughput) are packed and appended
+  to the next depth's ray queue (:mod:`~raytrax.renderer.compaction`), which is
+  processed in sub-tiles; the sub-tiles past the live count are skipped
+  (``lax.cond``): paths that ended at a diffuse surface cost nothing more;
 * at depth ``max_depth`` the specular children take the background instead.
 """
 
@@ -173,35 +173,40 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
     n = o.shape[1]
     dt = o.dtype
     m = max(B, min(opts.subtile, B * n) // B * B)  # rays per sub-tile, whole samples
-    S = -(-n // (m // B))  # sub-tiles: enough for n samples of B rays (and n camera rays)
+    ns = m // B  # samples per sub-tile at depth >= 1
+    S = -(-n // ns)  # sub-tiles: enough for n samples of B rays (and n camera rays)
+    cap = S * ns + m  # queue columns: every sub-tile, and a block written past the last live one
     # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
-    # of one (S, 10, m) buffer; its sample's id in an (S, m) buffer (n: none).
+    # of a (2, 10, B, cap) queue; its sample's id in a (2, B, cap) queue (n: none).
+    # Depth d reads half d % 2 and writes the other half.
     rays0 = jnp.concatenate([o, d, jnp.ones_like(o), jnp.zeros((1, n), dt)])
-    state = (C_.to_tiles(rays0, S, m, 0.0), C_.to_tiles(jnp.arange(n, dtype=jnp.int32), S, m, n))
-    empty = (jnp.zeros((S, 10, m), dt), jnp.full((S, m), n, jnp.int32))
-
-    @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
-    def shade_ckpt(last, a, b, c, e, *f):
-        return shade(scene, kinds, a, b, c, e, spread, opts, last, *f)
+    queue = (
+        C_.camera_queue(rays0, B, ns, cap, 0.0, dt),
+        C_.camera_queue(jnp.arange(n, dtype=jnp.int32), B, ns, cap, n, jnp.int32),
+    )
 
     def depth_body(carry, depth):
-        cur, count, radiance = carry
+        q, cols, radiance = carry
+        half = jax.lax.rem(depth, jnp.int32(2))
         last = depth == st.max_depth
+        live_rays = jnp.where(depth == 0, n, cols * B)  # n camera rays, then B per queued sample
+        live_cols = jnp.where(depth == 0, cap, cols)  # the reader masks columns past it
 
-        def tile_body(tc, x):
-            j, rays, sid_t = x
+        # One sub-tile's shading and its children, packed: recomputed in reverse mode
+        # from its rays (and the values SHADE_POLICY names), so that the residuals
+        # stored per sub-tile are its input rays.
+        @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
+        def sub_tile(rays, sid_t, *extra):
+            contrib, kids = shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], rays[9], spread, opts, last, *extra)
 
-            def live(tc):
-                nxt, cnt, rad = tc
-                extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
-                contrib, kids = shade_ckpt(last, rays[0:3], rays[3:6], rays[6:9], rays[9], *extra)
-
-                def write(g, children):  # g rays per sample in this sub-tile (1 at depth 0, else B)
-                    k = m // g
-                    sids = sid_t[:k]  # the sample of each (slot-major: slot 0 first)
-                    rad_out = rad.at[:, sids].add(contrib.reshape(3, g, k).sum(1), mode="drop", unique_indices=True)
-                    if not children:  # the last depth: its children are not traced
-                        return nxt, cnt, rad_out
+            def results(g, children):  # g rays per sample in this sub-tile (1 at depth 0, else B)
+                k = m // g
+                sids = sid_t[:k]  # the sample of each (slot-major: slot 0 first)
+                rad_k = contrib.reshape(3, g, k).sum(1)
+                if not children:  # the last depth: its children are not traced
+                    alive = jnp.zeros((k,), bool)
+                    kept = jnp.zeros((10, B, k), dt)
+                else:
                     po, rd, wr, pi, td, wt, cwh = kids
                     # (10, 2g, k) candidates: the reflected children of the g slots, then the refracted
                     cands = jnp.concatenate(
@@ -213,23 +218,38 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
                     )
                     kept = C_.pick(cands, C_.top_children(cands[6:9], B))  # (10, B, k)
                     alive = jnp.any(kept[6:9] > 0, (0, 1)) & (sids < n)
-                    q = cnt + jnp.cumsum(alive, dtype=jnp.int32) - 1
-                    out = C_.write_queue(nxt, q, alive, kept, jnp.broadcast_to(sids, (B, k)))
-                    return out, cnt + jnp.sum(alive, dtype=jnp.int32), rad_out
+                block, bid, c = C_.packed(alive, kept, sids, m)
+                if k < m:  # radiance per sample, padded to m samples (id n: none)
+                    rad_k = jnp.concatenate([rad_k, jnp.zeros((3, m - k), dt)], 1)
+                    sids = jnp.concatenate([sids, jnp.full((m - k,), n, jnp.int32)])
+                return rad_k, sids, block, bid, c
 
-                # Depth 0 has one ray per sample; the last depth only adds radiance.
-                gs = (1,) if B == 1 else (1, B)
-                fns = [functools.partial(write, g, c) for c in (True, False) for g in gs]
-                branch = jnp.where(last, len(gs), 0) + (jnp.where(depth == 0, 0, 1) if B > 1 else 0)
-                return jax.lax.switch(branch, fns)
+            # Depth 0 has one ray per sample; the last depth only adds radiance. The
+            # branches return fixed-size results and the buffers are written after the
+            # switch (buffers through a nested switch are copied by XLA).
+            gs = (1,) if B == 1 else (1, B)
+            fns = [functools.partial(results, g, c) for c in (True, False) for g in gs]
+            branch = jnp.where(last, len(gs), 0) + (jnp.where(depth == 0, 0, 1) if B > 1 else 0)
+            return jax.lax.switch(branch, fns)
 
-            return jax.lax.cond(any_in_batch(j * m < count), live, lambda tc: tc, tc), None
+        def tile_body(tc, j):
+            def live(tc):
+                q, cnt, rad = tc
+                rays, sid_t = C_.read(q, half, j, ns, live_cols, n)
+                extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
+                rad_k, sids, block, bid, c = sub_tile(rays, sid_t, *extra)
+                rad = rad.at[:, sids].add(rad_k, mode="drop", unique_indices=True)
+                return C_.append(q, 1 - half, cnt, block, bid), cnt + c, rad
 
-        init = (empty, jnp.zeros((), jnp.int32), radiance)
-        (nxt, cnt, radiance), _ = jax.lax.scan(tile_body, init, (jnp.arange(S, dtype=jnp.int32),) + cur)
-        return (nxt, cnt * B, radiance), None
+            return jax.lax.cond(any_in_batch(j * m < live_rays), live, lambda tc: tc, tc), None
 
-    (_, _, radiance), _ = jax.lax.scan(
-        depth_body, (state, jnp.asarray(n, jnp.int32), jnp.zeros_like(o)), jnp.arange(st.max_depth + 1)
+        # The next depth's queue is written over the previous depth's half (columns
+        # past its count stay stale: the reader masks them).
+        init = (q, jnp.zeros((), jnp.int32), radiance)
+        (q, cnt, radiance), _ = jax.lax.scan(tile_body, init, jnp.arange(S, dtype=jnp.int32))
+        return (q, cnt, radiance), None
+
+    (*_, radiance), _ = jax.lax.scan(
+        depth_body, (queue, jnp.asarray(0, jnp.int32), jnp.zeros_like(o)), jnp.arange(st.max_depth + 1, dtype=jnp.int32)
     )
     return radiance
