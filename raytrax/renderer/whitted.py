@@ -238,7 +238,10 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
                 rays, sid_t = C_.read(q, half, j, ns, live_cols, n)
                 extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
                 rad_k, sids, block, bid, c = sub_tile(rays, sid_t, *extra)
-                rad = rad.at[:, sids].add(rad_k, mode="drop", unique_indices=True)
+                # radiance is accumulated as (n, 3) rows; the (m, 3) update built by a
+                # loop fusion (a transposed copy would run as a slow standalone transpose)
+                upd = jnp.stack([rad_k[0], rad_k[1], rad_k[2]], -1)
+                rad = rad.at[sids].add(upd, mode="drop", unique_indices=True)
                 return C_.append(q, 1 - half, cnt, block, bid), cnt + c, rad
 
             return jax.lax.cond(any_in_batch(j * m < live_rays), live, lambda tc: tc, tc), None
@@ -250,6 +253,6 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
         return (q, cnt, radiance), None
 
     (*_, radiance), _ = jax.lax.scan(
-        depth_body, (queue, jnp.asarray(0, jnp.int32), jnp.zeros_like(o)), jnp.arange(st.max_depth + 1, dtype=jnp.int32)
+        depth_body, (queue, jnp.asarray(0, jnp.int32), jnp.zeros((n, 3), dt)), jnp.arange(st.max_depth + 1, dtype=jnp.int32)
     )
-    return radiance
+    return radiance.T
