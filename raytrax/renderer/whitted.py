@@ -253,6 +253,8 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
         return (q, cnt, radiance), None
 
     (*_, radiance), _ = jax.lax.scan(
-        depth_body, (queue, jnp.asarray(0, jnp.int32), jnp.zeros((n, 3), dt)), jnp.arange(st.max_depth + 1, dtype=jnp.int32)
+        depth_body,
+        (queue, jnp.asarray(0, jnp.int32), jnp.zeros((n, 3), dt)),
+        jnp.arange(st.max_depth + 1, dtype=jnp.int32),
     )
     return radiance.T
