@@ -203,9 +203,8 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
                 k = m // g
                 sids = sid_t[:k]  # the sample of each (slot-major: slot 0 first)
                 rad_k = contrib.reshape(3, g, k).sum(1)
-                if not children:  # the last depth: its children are not traced
-                    alive = jnp.zeros((k,), bool)
-                    kept = jnp.zeros((10, B, k), dt)
+                if not children:  # the last depth: no children are traced
+                    block, bid, c = jnp.zeros((10, B, m), dt), jnp.zeros((m,), jnp.int32), jnp.zeros((), jnp.int32)
                 else:
                     po, rd, wr, pi, td, wt, cwh = kids
                     # (10, 2g, k) candidates: the reflected children of the g slots, then the refracted
@@ -218,7 +217,7 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
                     )
                     kept = C_.pick(cands, C_.top_children(cands[6:9], B))  # (10, B, k)
                     alive = jnp.any(kept[6:9] > 0, (0, 1)) & (sids < n)
-                block, bid, c = C_.packed(alive, kept, sids, m)
+                    block, bid, c = C_.packed(alive, kept, sids, m)
                 if k < m:  # radiance per sample, padded to m samples (id n: none)
                     rad_k = jnp.concatenate([rad_k, jnp.zeros((3, m - k), dt)], 1)
                     sids = jnp.concatenate([sids, jnp.full((m - k,), n, jnp.int32)])
