@@ -97,9 +97,10 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     number of sample pairs with an edge between them; and the silhouette
     quadrature's rays (step 6), or ``None`` in a scene without spheres.
 
-    ``radiance_at(xy (2, M), light=None) -> (M, 3)``: radiance of camera rays
-    through image positions ``xy`` (with ``light (M,)``: per ray, that light's
-    contribution alone, or everything at index ``L``), treated as a constant. The
+    ``radiance_at(xy (2, M), light (M,), need (M,)) -> (M, 3)``: radiance of camera
+    rays through image positions ``xy`` (per ray, that light's contribution alone,
+    or everything at index ``L``), treated as a constant; only the rays ``need``
+    marks must be traced (the others may be zero). The
     jump ``f_minus - f_plus`` is measured by probe rays just on either side of the
     edge point (``1/256`` of the sample spacing away for visibility edges, 0.03
     pixel for shadow edges), where the probes see the same as the two samples
@@ -328,7 +329,6 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         # (at most 0.45 of the spacing) from the edge, on both sides of that edge.
         frac = jnp.where(vis, 1.0 / 256.0, jnp.maximum(1.0 / 256.0, jnp.minimum(0.45, 0.03 * n)))
         u = (xb - xa) * frac[None]
-        probes = jnp.concatenate([xs - u, xs + u], 1)
         # A sphere's silhouette: the radiance beside it is f_s + a sqrt(distance); the
         # inside probe is extrapolated to the edge with ``a``, fitted from it and two
         # more rays 1/16 and 1/4 of the spacing inside (phi h: the first inside
@@ -504,28 +504,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 & (r_p.last[lvl, c["k"], ar] == c["lb"])
             )
             jump_ok = jump_ok & (vis | sh)
-        # A shadow edge's jump is that of its light's contribution alone; one compiled
-        # trace, mapped over the lights and then everything (index L).
-        # One trace of each ray: the probes with their light (index L: everything), and
-        # without spheres no inner rays.
-        which = jnp.where(vis, L, c["k"])
-        pts = jnp.concatenate([probes, inner], 1) if ns else probes
-        sel = jnp.concatenate([which, which] + ([jnp.full((2 * E,), L, jnp.int32)] if ns else []))
-        fl = radiance_at(pts, sel)
-        fr = fl[: 2 * E]
-        # f = f_s + A sqrt(q) + B q at the inside distances q = 1/256 (the probe), 1/16
-        # and 1/4 of the spacing: A by elimination of f_s and B.
-        q0, q1, q2 = 1.0 / 256.0, 1.0 / 16.0, 1.0 / 4.0
-        f0 = jnp.where(in_b[:, None], fr[E:], fr[:E])
-        f1, f2 = (fl[2 * E : 3 * E], fl[3 * E :]) if ns else (f0, f0)
-        A = ((f1 - f0) * (q2 - q0) - (f2 - f0) * (q1 - q0)) / (
-            (math.sqrt(q1) - math.sqrt(q0)) * (q2 - q0) - (math.sqrt(q2) - math.sqrt(q0)) * (q1 - q0)
-        )
-        A = jnp.where(sil[:, None] & jnp.isfinite(A), A, 0.0)
-        fin = f0 - A * math.sqrt(q0)  # the inside probe extrapolated to the edge
-        fm = jnp.where(in_b[:, None], fr[:E], fin)
-        fp = jnp.where(in_b[:, None], fin, fr[E:])
-        df = jnp.where(jump_ok[:, None], fm - fp, 0.0)
+        # The probes (minus and plus side) and, beside a sphere's silhouette, the two
+        # inner rays: traced after every chunk is solved (below), in large batches.
+        probe = jnp.stack([xs - u, xs + u] + (list(jnp.moveaxis(inner.reshape(2, 2, E), 1, 0)) if ns else []), 1)
 
         ext = jnp.where(full, 0.5 * h, jnp.where(lost, h, jnp.abs(0.5 * (lo + hi))))
         e_m, e_p = ext[:E], ext[E:]
@@ -537,18 +518,21 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         m = jnp.maximum(jnp.abs(gx), jnp.abs(gy))
         a4, c4 = V.safe_div(ga, m) ** 4, V.safe_div(gc, m) ** 4
         wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
-        coef = -df * (jnp.sign(ga) * wgt * (e_m + e_p))[:, None]
-        coef = jnp.where(ok[:, None] & jnp.isfinite(coef), coef, 0.0)
+        cbase = -jnp.sign(ga) * wgt * (e_m + e_p)  # times the jump: the coefficient of g
         out = {
             "typ": ev.typ,
             "p1": ev.p1,
             "p2": ev.p2,
             "sign": ev.sign,
             "xs": xs,
-            "coef": coef.T,
+            "cbase": cbase,
             "pix": pix,
             "wts": wts,
             "ok": ok,
+            "probe": probe,
+            "in_b": in_b,
+            "sil": sil,
+            "jump_ok": jump_ok,
         }
         if ns:
             # A sphere's silhouette: the first QUAD_SAMPLES inside samples of the row (at
@@ -590,11 +574,36 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
     res = map_chunks(solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=R)
+    # The jumps: the probes of every event traced in one chunked pass, skipping the
+    # chunks past the live events (a shadow edge's jump is that of its light's
+    # contribution alone: index k; visibility edges and the inner rays carry
+    # everything, index L). f = f_s + A sqrt(q) + B q at the inside distances q = 1/256
+    # (the probe), 1/16 and 1/4 of the spacing: A by elimination of f_s and B.
+    probe = res["probe"]  # (2, P, K)
+    npr = probe.shape[1]
+    which = jnp.where(vis, L, k_ev)
+    sel = jnp.stack([which, which] + [jnp.full_like(which, L)] * (npr - 2), 1).ravel()  # event-major
+    need = jnp.repeat(res["ok"], npr)
+    fl = radiance_at(jnp.moveaxis(probe, 1, 2).reshape(2, K * npr), sel, need).reshape(K, npr, 3)
+    in_b, sil = res["in_b"][:, None], res["sil"][:, None]
+    f0 = jnp.where(in_b, fl[:, 1], fl[:, 0])
+    f1, f2 = (fl[:, 2], fl[:, 3]) if ns else (f0, f0)
+    q0, q1, q2 = 1.0 / 256.0, 1.0 / 16.0, 1.0 / 4.0
+    a_fit = ((f1 - f0) * (q2 - q0) - (f2 - f0) * (q1 - q0)) / (
+        (math.sqrt(q1) - math.sqrt(q0)) * (q2 - q0) - (math.sqrt(q2) - math.sqrt(q0)) * (q1 - q0)
+    )
+    a_fit = jnp.where(sil & jnp.isfinite(a_fit), a_fit, 0.0)
+    fin = f0 - a_fit * math.sqrt(q0)  # the inside probe extrapolated to the edge
+    fm = jnp.where(in_b, fl[:, 0], fin)
+    fp = jnp.where(in_b, fin, fl[:, 1])
+    df = jnp.where(res["jump_ok"][:, None], fm - fp, 0.0)
+    coef = df * res["cbase"][:, None]
+    coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
     g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)
     g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
-    term = res["coef"].T * g[:, None]  # (K, 3)
+    term = coef * g[:, None]  # (K, 3)
     img = jnp.zeros((height * width, 3), term.dtype)
     for j in range(3):
         img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])

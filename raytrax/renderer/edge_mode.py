@@ -8,6 +8,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from ..branching import any_in_batch
 from ..camera import cone_spread, rays_through
 from ..chunks import equal_chunks, map_chunks
 from ..compile_options import filter_jit
@@ -19,23 +20,33 @@ from .tiles import splat_positions
 from .whitted import trace
 
 
-def map_positions(fn, xy, chunk: int, sel=None):
+def map_positions(fn, xy, chunk: int, sel=None, need=None, devices: int = 1):
     """``fn(xy_chunk (2, c), sel_chunk (c,) or None) -> (c, k)`` over image positions
     ``xy (2, M)`` (and per-position ``sel (M,)``) in equal chunks of at most ``chunk``
-    (``lax.map``); returns ``(M, k)``."""
+    (``lax.map``); returns ``(M, k)``. ``need (M,)``: a chunk with no needed position
+    is skipped (zeros). ``devices > 1``: the chunks are dealt to that many devices."""
     M = xy.shape[1]
-    n, c = equal_chunks(M, chunk)
-    if sel is None:
-        return map_chunks(lambda x: fn(x, None), xy, M, n, c, out_axis=0)
-    return map_chunks(lambda a: fn(*a), (xy, sel), M, n, c, out_axis=0)
+    n, c = equal_chunks(M, chunk, devices)
+    args = {"xy": xy} | ({} if sel is None else {"sel": sel}) | ({} if need is None else {"need": need})
+
+    def run(a):
+        x, s = a["xy"], a.get("sel")
+        if "need" not in a:
+            return fn(x, s)
+        out = jax.eval_shape(fn, x, s)
+        return jax.lax.cond(any_in_batch(a["need"]), fn, lambda *_: jnp.zeros(out.shape, out.dtype), x, s)
+
+    return map_chunks(run, args, M, n, c, out_axis=0, devices=devices, deal=devices > 1)
 
 
-def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False):
+def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=False, need=None, devices: int = 1):
     """Radiance ``(M, 3)`` of camera rays through image positions ``xy (2, M)`` (no
     gradient unless ``grad``; the jump across an edge). ``light`` (an index or ``(M,)``
     indices, may be traced): where below the number of lights, only what that light
     contributes, through every specular path (no ambient, no background, the other
-    lights off); at or above it, everything. One trace of each ray whatever the indices."""
+    lights off); at or above it, everything. One trace of each ray whatever the indices.
+    ``need (M,)``: the rays wanted (chunks of rays none of which is wanted are
+    skipped, their radiance zero); ``devices``: the chunks dealt to that many devices."""
     st = opts.settings
     if not grad:
         scene = jax.lax.stop_gradient(scene)
@@ -47,7 +58,7 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
         o, d = rays_through(scene.camera, x, st.width, st.height)
         return trace(scene, kinds, o, d, spread, opts, s).T
 
-    return map_positions(one, xy, opts.tile_rays // st.branches, sel)
+    return map_positions(one, xy, opts.tile_rays // st.branches, sel, need, devices)
 
 
 def render_edges(scene: Scene, opts: RenderOptions, eo):
@@ -63,7 +74,9 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     # where the pattern changes beside the edge: the derivative the estimate converges
     # to is that of the image as the samples grow, where the filter width goes to 0.
     hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
-    edge, _, quad = edge_term(scene, W, H, eo, lambda xy, light=None: radiance_at(scene, hard, xy, n, light))
+    edge, _, quad = edge_term(
+        scene, W, H, eo, lambda xy, light, need: radiance_at(scene, hard, xy, n, light, need=need, devices=eo.devices)
+    )
     # Positions in pixels of the (W n, H n) sample grid, whose sample centres are
     # (j + 1/2, i + 1/2), exactly as a spp-1 render at that size places them. Image 0
     # is the grid's mean per pixel, image 1 the quadrature's term.
