@@ -26,6 +26,10 @@ from .branching import any_in_batch
 from .shapes.triangles import tri_hit, tri_soa, tri_t
 
 BLOCK = 128
+# Shadow rays test kinds of at most this many primitives one primitive at a time
+# (unrolled rows of rays, or'ed) rather than as a (rays, N) tile reduced over its
+# short minor axis, which XLA:CPU runs slowly; the compile cost grows with the count.
+UNROLL_SHADOW = 16
 EPS_REL = 1e-4  # offset of spawned rays from their surface, relative to 1 + max |coordinate|
 
 
@@ -113,6 +117,11 @@ def _blocks(soa, extra=None):
     return out, valid, base
 
 
+def _prim(soa, j: int):
+    """Primitive ``j``'s search parameters as scalars."""
+    return {nm: v[j] for nm, v in soa.items()}
+
+
 def closest_kind(k: Kind, ray, tmin):
     """Per ray: nearest distance (inf on a miss) and primitive index of one kind."""
     if k.accel is not None:
@@ -150,8 +159,14 @@ def nearest_kind(kinds: list[Kind], ray, tmin=0.0):
     the kind hit first (ties: the earlier kind), its distance (``inf``: no hit), and
     each kind's nearest primitive index (a tuple of ``(n,)``)."""
     ts, ids = zip(*[closest_kind(k, ray, tmin) for k in kinds])
-    ts = jnp.stack(ts)
-    return jnp.argmin(ts, 0), jnp.min(ts, 0), ids
+    # A chain over the kinds (strictly nearer replaces: ties keep the earlier kind),
+    # elementwise, where a stacked (kinds, n) argmin is a slow reduction on XLA:CPU.
+    tb, which = ts[0], jnp.zeros(ts[0].shape, jnp.int32)
+    for j in range(1, len(ts)):
+        nearer = ts[j] < tb
+        tb = jnp.where(nearer, ts[j], tb)
+        which = jnp.where(nearer, j, which)
+    return which, tb, ids
 
 
 def closest_hit(kinds: list[Kind], o, d) -> Hit:
@@ -224,6 +239,7 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     tmax = jax.lax.stop_gradient(tmax)[:, None]
     ray2 = tuple(r[:, None] for r in ray)
+    tmax1 = tmax[:, 0]
     counts = jnp.zeros((n, n_materials), o.dtype)
     for k in kinds:
         if k.accel is not None:
@@ -231,7 +247,11 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
             continue
         onehot = jax.nn.one_hot(k.material, n_materials, dtype=o.dtype)
         N = k.material.shape[0]
-        if N <= BLOCK:
+        if N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
+            for j in range(N):
+                hit = _crossings(k, ray, _prim(k.soa, j), tmax1)
+                counts = counts + hit[:, None] * onehot[j][None, :]
+        elif N <= BLOCK:
             hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
             counts = counts + hit @ onehot
         else:
@@ -258,6 +278,7 @@ def occluded(kinds: list[Kind], o, d, tmax):
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     tmax = jax.lax.stop_gradient(tmax)[:, None]
     ray2 = tuple(r[:, None] for r in ray)
+    tmax1 = tmax[:, 0]
     blocked = jnp.zeros((n,), bool)
     for k in kinds:
         if k.accel is not None:
@@ -265,7 +286,10 @@ def occluded(kinds: list[Kind], o, d, tmax):
             blocked = blocked | (counts[:, 0] != 0)
             continue
         N = k.material.shape[0]
-        if N <= BLOCK:
+        if N <= UNROLL_SHADOW:  # one row per primitive, or'ed: one elementwise loop
+            for j in range(N):
+                blocked = blocked | (_crossings(k, ray, _prim(k.soa, j), tmax1) > 0)
+        elif N <= BLOCK:
             hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
             blocked = blocked | (jnp.max(hit, 1) > 0)
         else:
