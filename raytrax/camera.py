@@ -79,7 +79,15 @@ def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=Non
     radians per unit distance) of one sample, used for texture filtering.
     With ``key`` each sample is jittered uniformly inside its stratum.
     """
-    dtype = camera.position.dtype
+    xy = sample_positions(pix, width, spp, camera.position.dtype, key)
+    o, d = rays_through(camera, xy, width, height)
+    return o, d, cone_spread(camera, height, math.isqrt(spp))
+
+
+def sample_positions(pix, width: int, spp: int, dtype, key=None):
+    """The image positions ``(2, spp * P)`` (pixels, as :func:`rays_through` takes
+    them) of the ``spp`` samples of each flat pixel index ``pix (P,)``, ordered as
+    :func:`primary_rays` orders its rays; jittered inside their strata with ``key``."""
     n = math.isqrt(spp)
     offs = subpixel_offsets(spp, dtype)  # (spp, 2)
     row = (pix // width).astype(dtype)
@@ -90,6 +98,4 @@ def primary_rays(camera: Camera, pix, width: int, height: int, spp: int, key=Non
         j = jax.random.uniform(key, (2, spp, pix.shape[0]), dtype=dtype) - 0.5
         sx = sx + j[0] / n
         sy = sy + j[1] / n
-    xy = jnp.stack([(col[None, :] + sx).ravel(), (row[None, :] + sy).ravel()])
-    o, d = rays_through(camera, xy, width, height)
-    return o, d, cone_spread(camera, height, n)
+    return jnp.stack([(col[None, :] + sx).ravel(), (row[None, :] + sy).ravel()])

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from ..branching import any_in_batch
-from ..camera import cone_spread, rays_through
+from ..camera import cone_spread
 from ..chunks import equal_chunks, map_chunks
 from ..compile_options import filter_jit
 from ..edges import edge_term
@@ -55,8 +55,7 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
     kinds = prepare(scene)
 
     def one(x, s):
-        o, d = rays_through(scene.camera, x, st.width, st.height)
-        return trace(scene, kinds, o, d, spread, opts, s).T
+        return trace(scene, kinds, x, spread, opts, s).T
 
     return map_positions(one, xy, opts.tile_rays // st.branches, sel, need, devices)
 

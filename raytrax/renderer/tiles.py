@@ -9,7 +9,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..camera import primary_rays, rays_through
+from ..camera import cone_spread, sample_positions
 from ..chunks import AXIS, equal_chunks, over_devices, round_robin, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
@@ -50,8 +50,8 @@ def _render_image(scene: Scene, opts: RenderOptions, key):
     def tile_fn(scene, kinds, args, key):
         pix_t, i = args
         k = None if key is None else jax.random.fold_in(key, i)
-        o, d, spread = primary_rays(scene.camera, pix_t, W, H, spp, k)
-        rad = trace(scene, kinds, o, d, spread, opts)
+        xy = sample_positions(pix_t, W, spp, scene.dtype, k)
+        rad = trace(scene, kinds, xy, cone_spread(scene.camera, H, math.isqrt(spp)), opts)
         return rad.reshape(3, spp, tile).mean(1).T  # (tile, 3)
 
     out = map_tiles(tile_fn, scene, (pix, ids), n_dev, key)
@@ -68,7 +68,6 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     ``opts.devices``, and each tile is added into the images as it is traced, so
     that memory holds the images and one tile, not every ray's radiance. ``needed
     (M,)`` (no gradient): a tile none of whose rays is needed is skipped."""
-    st = opts.settings
     M, k = weight.shape
     c = max(1, min(M, opts.tile_rays))
     n_dev = opts.devices
@@ -85,8 +84,7 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         @jax.checkpoint
         def radiance(x, on):
             def go(x):
-                o, d = rays_through(scene.camera, x, st.width, st.height)
-                return trace(scene, kinds, o, d, spread, opts).T
+                return trace(scene, kinds, x, spread, opts).T
 
             return jax.lax.cond(on, go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
 

@@ -30,6 +30,7 @@ from jax.ad_checkpoint import checkpoint_name
 
 from .. import vec as V
 from ..branching import any_in_batch
+from ..camera import rays_through
 from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
 from ..materials import SHADING_MODELS, facing, interface, material_rows, refract
@@ -158,39 +159,47 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
 
 
-def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
-    """Radiance ``(3, n)`` of camera rays ``o, d (3, n)`` (``sel (n,)``: see :func:`shade`).
+def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
+    """Radiance ``(3, n)`` of the camera rays through image positions ``xy (2, n)``
+    (in pixels, :func:`raytrax.camera.rays_through`; ``sel (n,)``: see :func:`shade`).
 
     A wavefront over depth (a ``lax.scan``; every depth runs the same compiled
     body): the live samples form a prefix of a ray queue
     (:mod:`~raytrax.renderer.compaction`), shaded in sub-tiles of
     ``opts.subtile`` rays (a ``lax.scan`` over sub-tiles, each under a
     ``lax.cond`` that skips it past the live count). Each sample keeps the
-    ``branches`` heaviest of its rays' reflected and refracted children.
+    ``branches`` heaviest of its rays' reflected and refracted children. Depth 0
+    makes each sub-tile's camera rays from its slice of ``xy``.
     """
     st = opts.settings
     B = st.branches
-    n = o.shape[1]
-    dt = o.dtype
+    n = xy.shape[1]
+    dt = xy.dtype
     m = max(B, min(opts.subtile, B * n) // B * B)  # rays per sub-tile, whole samples
     ns = m // B  # samples per sub-tile at depth >= 1
     S = -(-n // ns)  # sub-tiles: enough for n samples of B rays (and n camera rays)
     cap = S * ns + m  # queue columns: every sub-tile, and a block written past the last live one
     # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
     # of a (2, 10, B, cap) queue; its sample's id in a (2, B, cap) queue (n: none).
-    # Depth d reads half d % 2 and writes the other half.
-    rays0 = jnp.concatenate([o, d, jnp.ones_like(o), jnp.zeros((1, n), dt)])
-    queue = (
-        C_.camera_queue(rays0, B, ns, cap, 0.0, dt),
-        C_.camera_queue(jnp.arange(n, dtype=jnp.int32), B, ns, cap, n, jnp.int32),
-    )
+    # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
+    queue = (jnp.zeros((2, 10, B, cap), dt), jnp.full((2, B, cap), n, jnp.int32))
+    n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
+    xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
+
+    def camera_rays(j):  # sub-tile j's camera rays (10, m) and sample ids (m,) (n: padding)
+        start = j * m
+        oc, dc = rays_through(
+            scene.camera, jax.lax.dynamic_slice(xy0, (jnp.zeros((), start.dtype), start), (2, m)), st.width, st.height
+        )
+        rays = jnp.concatenate([oc, dc, jnp.ones_like(oc), jnp.zeros((1, m), dt)])
+        sid = start + jnp.arange(m, dtype=jnp.int32)
+        return rays, jnp.where(sid < n, sid, n)
 
     def depth_body(carry, depth):
         q, cols, radiance = carry
         half = jax.lax.rem(depth, jnp.int32(2))
         last = depth == st.max_depth
         live_rays = jnp.where(depth == 0, n, cols * B)  # n camera rays, then B per queued sample
-        live_cols = jnp.where(depth == 0, cap, cols)  # the reader masks columns past it
 
         # One sub-tile's shading and its children, packed: recomputed in reverse mode
         # from its rays (and the values SHADE_POLICY names), so that the residuals
@@ -234,7 +243,7 @@ def trace(scene: Scene, kinds, o, d, spread, opts: RenderOptions, sel=None):
         def tile_body(tc, j):
             def live(tc):
                 q, cnt, rad = tc
-                rays, sid_t = C_.read(q, half, j, ns, live_cols, n)
+                rays, sid_t = jax.lax.cond(depth == 0, camera_rays, lambda j: C_.read(q, half, j, ns, cols, n), j)
                 extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
                 rad_k, sids, block, bid, c = sub_tile(rays, sid_t, *extra)
                 # radiance is accumulated as (n, 3) rows; the (m, 3) update built by a
