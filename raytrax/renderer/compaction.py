@@ -6,13 +6,13 @@ ray's state as rows ``(2, r, B, Q)``: half, row, branch slot, queue column; one
 column is one sample, so every array keeps its ray axis last and contiguous.
 Depth ``d`` reads half ``d % 2`` and writes the other (one buffer carried
 through the depth loop and updated in place). Sub-tile ``j`` is the ``(r, B,
-ns)`` block of columns ``j ns ... (j + 1) ns - 1`` (``m = B ns`` rays). At depth 0
-every ray is its own sample (:func:`camera_queue`).
+ns)`` block of columns ``j ns ... (j + 1) ns - 1`` (``m = B ns`` rays). Depth 0
+reads no queue: each sub-tile makes its own ``m`` camera rays, one per sample.
 
 Writing. A sub-tile's samples whose children all have zero weight are dropped:
-the live ones are packed to the front of a block (a gather, which XLA:CPU fuses
-into the loop that computes the block; its derivative is written so that
-reverse mode is a gather too) and the block is written at the queue's live
+the live ones are packed to the front of a block (a gather, in chunks that are
+skipped past the live count when nothing is differentiated; its derivative is
+written so that reverse mode is a gather too) and the block is written at the queue's live
 count (one contiguous ``dynamic_update_slice``). Columns past the live count
 hold stale rays; the reader masks them (:func:`read`). No scatter of rays, no
 transposes, no pass over the whole buffer per depth.
@@ -22,19 +22,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-
-
-def camera_queue(a, B: int, ns: int, cap: int, fill, dtype):
-    """Camera-ray rows ``a ([r,] n)`` as a two-half queue ``(2, [r,] B, cap)``, in half
-    0: ray ``i`` at slot ``i // (S0 ns)``, column ``i % (S0 ns)`` (the first ``S0``
-    sub-tiles of ``B ns`` rays hold them all; the order of rays inside a sub-tile
-    does not matter); padded with ``fill``. Half 1 is ``fill``."""
-    n = a.shape[-1]
-    lead = a.shape[:-1]
-    cols = -(-n // (B * ns)) * ns
-    a = jnp.concatenate([a, jnp.full(lead + (B * cols - n,), fill, dtype)], -1).reshape(lead + (B, cols))
-    a = jnp.concatenate([a, jnp.full(lead + (B, cap - cols), fill, dtype)], -1)
-    return jnp.stack([a, jnp.full_like(a, fill)])
 
 
 def read(bufs, half, j, ns: int, live_cols, n: int):
@@ -65,23 +52,43 @@ def pack(alive, width: int):
     return src, dst, jnp.sum(alive, dtype=jnp.int32)
 
 
-@jax.custom_jvp
-def _permute(rows, src, dst):
-    """``rows (r, B, k)`` at columns ``src (w,)`` (``k``: zero): ``(r, B, w)``. ``dst
-    (k,)`` is the inverse map (``w``: dropped); the tangent is written with it, so
-    that reverse mode transposes it into a gather as well (a gather's own
-    transpose is a scatter-add, a slow loop on XLA:CPU)."""
+PACK_CHUNK = 1024
+
+
+def _gather_cols(rows, src):
+    """``rows (r, B, k)`` at columns ``src (w,)`` (``k``: zero): ``(r, B, w)``."""
     padded = jnp.concatenate([rows, jnp.zeros(rows.shape[:2] + (1,), rows.dtype)], -1)
     return jnp.take(padded, src, axis=2, mode="clip", unique_indices=False)
 
 
+@jax.custom_jvp
+def _permute(rows, src, dst, c):
+    """``rows (r, B, k)`` at columns ``src (w,)`` (``k``: zero): ``(r, B, w)``, where
+    only the first ``c`` columns are live (the rest are zero here). ``dst (k,)`` is
+    the inverse map (``w``: dropped).
+
+    Evaluated alone, the columns are gathered in chunks of :data:`PACK_CHUNK`, a
+    chunk wholly past ``c`` skipped (zero). Differentiated, it is one gather, and
+    the tangent is written with ``dst``, so that reverse mode transposes it into a
+    gather as well (a gather's own transpose is a scatter-add, a slow loop on
+    XLA:CPU); the skipping conditionals would cost more in reverse mode than they
+    save."""
+    w = src.shape[0]
+    C = PACK_CHUNK
+    if w <= C or w % C:
+        return _gather_cols(rows, src)
+    zero = jnp.zeros(rows.shape[:2] + (C,), rows.dtype)
+    parts = [jax.lax.cond(lo < c, _gather_cols, lambda *_: zero, rows, src[lo : lo + C]) for lo in range(0, w, C)]
+    return jnp.concatenate(parts, -1)
+
+
 @_permute.defjvp
 def _permute_jvp(primals, tangents):
-    rows, src, dst = primals
+    rows, src, dst, c = primals
     t = tangents[0]
     w = src.shape[0]
     out_t = jnp.zeros(rows.shape[:2] + (w,), rows.dtype).at[:, :, dst].add(t, mode="drop", unique_indices=True)
-    return _permute(rows, src, dst), out_t
+    return _gather_cols(rows, src), out_t
 
 
 def packed(alive, rows, ids, width: int):
@@ -90,7 +97,7 @@ def packed(alive, rows, ids, width: int):
     the live ones) and ids ``(width,)`` (``ids (k,)``; ``0`` past them), and the
     number of live samples."""
     src, dst, c = pack(alive, width)
-    return _permute(rows, src, dst), jnp.take(ids, src, mode="fill", fill_value=0), c
+    return _permute(rows, src, dst, c), jnp.take(ids, src, mode="fill", fill_value=0), c
 
 
 def append(bufs, half, cnt, block, bid):
