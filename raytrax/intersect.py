@@ -237,9 +237,9 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
     float (no gradient: visibility is piecewise constant)."""
     n = o.shape[1]
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
-    tmax = jax.lax.stop_gradient(tmax)[:, None]
+    tmax1 = jax.lax.stop_gradient(tmax)
+    tmax = tmax1[:, None]
     ray2 = tuple(r[:, None] for r in ray)
-    tmax1 = tmax[:, 0]
     counts = jnp.zeros((n, n_materials), o.dtype)
     for k in kinds:
         if k.accel is not None:
@@ -276,9 +276,9 @@ def occluded(kinds: list[Kind], o, d, tmax):
     ``occluder_counts(...) != 0`` in any material, without the per-material counts."""
     n = o.shape[1]
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
-    tmax = jax.lax.stop_gradient(tmax)[:, None]
+    tmax1 = jax.lax.stop_gradient(tmax)
+    tmax = tmax1[:, None]
     ray2 = tuple(r[:, None] for r in ray)
-    tmax1 = tmax[:, 0]
     blocked = jnp.zeros((n,), bool)
     for k in kinds:
         if k.accel is not None:

@@ -69,3 +69,20 @@ def test_append_then_read_returns_the_live_columns_and_masks_the_rest():
         want = np.where(ok, rays_all[..., np.minimum(cols, int(cnt) - 1)], 0.0).reshape(r, B * ns)
         np.testing.assert_array_equal(np.asarray(rays), want)
         np.testing.assert_array_equal(np.asarray(sid), np.tile(np.where(ok, ids_all[np.minimum(cols, 4)], n), B))
+
+
+def test_packed_in_chunks_matches_one_gather_and_zeroes_skipped_chunks():
+    # A block wider than one chunk (compaction.PACK_CHUNK): the chunks past the live
+    # count are skipped when nothing is differentiated; the block must be the same.
+    width = 4 * C.PACK_CHUNK
+    for frac in (0.0, 0.3, 1.0):  # no live sample, live ones in the first chunks, all live
+        k = width - 5
+        alive = np.asarray(jax.random.uniform(jax.random.key(3), (k,)) < frac)
+        rows = jax.random.normal(jax.random.key(4), (2, 2, k), jnp.float32)
+        block, bid, c = C.packed(jnp.asarray(alive), rows, jnp.arange(k, dtype=jnp.int32), width)
+        live = np.flatnonzero(alive)
+        assert int(c) == live.size
+        expected = np.zeros((2, 2, width), np.float32)
+        expected[..., : live.size] = np.asarray(rows)[..., live]
+        np.testing.assert_array_equal(np.asarray(block), expected)
+        np.testing.assert_array_equal(np.asarray(bid[: live.size]), live)
