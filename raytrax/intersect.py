@@ -40,6 +40,9 @@ def offset_scale(p):
 
 
 INF = float("inf")
+# Crossing counts are summed by matrix products: at full precision, so that no
+# accelerator rounds them through a lower-precision format.
+_EXACT = jax.lax.Precision.HIGHEST
 
 
 class Kind(NamedTuple):
@@ -253,7 +256,7 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
                 counts = counts + hit[:, None] * onehot[j][None, :]
         elif N <= BLOCK:
             hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
-            counts = counts + hit @ onehot
+            counts = counts + jnp.dot(hit, onehot, precision=_EXACT)
         else:
             P, valid, _ = _blocks(k.soa)
             nb = valid.shape[0]
@@ -264,7 +267,7 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
                 Pb, vb, ohb = blk
                 hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
                 hit = jnp.where(vb[None, :], hit, 0.0)
-                return c + hit @ ohb, None
+                return c + jnp.dot(hit, ohb, precision=_EXACT), None
 
             counts, _ = jax.lax.scan(body, counts, (P, valid, oh))
     return jax.lax.stop_gradient(counts)
@@ -293,14 +296,14 @@ def occluded(kinds: list[Kind], o, d, tmax):
             # Crossings summed by a matrix-vector product: XLA:CPU runs a max (or sum)
             # reduction of this (rays, N) tile 5-7x slower than the product.
             hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
-            blocked = blocked | ((hit @ jnp.ones((N,), hit.dtype)) > 0)
+            blocked = blocked | (jnp.dot(hit, jnp.ones((N,), hit.dtype), precision=_EXACT) > 0)
         else:
             P, valid, _ = _blocks(k.soa)
 
             def body(c, blk):
                 Pb, vb = blk
                 hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
-                return c | ((hit @ vb.astype(hit.dtype)) > 0), None
+                return c | (jnp.dot(hit, vb.astype(hit.dtype), precision=_EXACT) > 0), None
 
             blocked, _ = jax.lax.scan(body, blocked, (P, valid))
     return blocked
