@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import vec as V
+from ..branching import any_in_batch
 from ..camera import rays_through
 from .prims import Prims, first_t, miss, specular_step
 
@@ -34,13 +35,18 @@ def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
 
     # One compiled level, scanned over the chain: its ray is materialised between
     # levels (unrolled, XLA:CPU fuses each level's ray into every use of it, and the
-    # work grows geometrically with the depth).
+    # work grows geometrically with the depth). A level that no event of the batch
+    # reaches is skipped (most edges are seen directly or through one or two
+    # surfaces, where the chain has as many levels as the render's depth).
     def level(od, args):
         ids, refr, lv = args
-        o, d = od
-        o2, d2, _ = specular_step(P, ns, ids, refr, o, d)
         go = lv < ev.level
-        return (V.vsel(go, o2, o), V.vsel(go, d2, d)), None
+
+        def step(o, d):
+            o2, d2, _ = specular_step(P, ns, ids, refr, o, d)
+            return V.vsel(go, o2, o), V.vsel(go, d2, d)
+
+        return jax.lax.cond(any_in_batch(go), step, lambda o, d: (o, d), *od), None
 
     lvs = jnp.arange(ev.chain.shape[0] - 1, dtype=ev.level.dtype)
     (o, d), _ = jax.lax.scan(level, (o, d), (ev.chain[:-1], ev.refr[:-1], lvs))
