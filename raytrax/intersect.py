@@ -255,6 +255,8 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
                 hit = _crossings(k, ray, _prim(k.soa, j), tmax1)
                 counts = counts + hit[:, None] * onehot[j][None, :]
         elif N <= BLOCK:
+            # Summed by a matrix product: XLA:CPU runs a reduction of this (rays, N)
+            # tile (a max or a sum over N) 5-7x slower than the product.
             hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
             counts = counts + jnp.dot(hit, onehot, precision=_EXACT)
         else:
@@ -275,35 +277,7 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
 
 def occluded(kinds: list[Kind], o, d, tmax):
     """For shadow rays ``o, d (3, n)`` and segment lengths ``tmax (n,)``: whether any
-    surface crosses the open segment ``(0, tmax)``, ``(n,)`` bool. The same as
-    ``occluder_counts(...) != 0`` in any material, without the per-material counts."""
-    n = o.shape[1]
-    ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
-    tmax1 = jax.lax.stop_gradient(tmax)
-    tmax = tmax1[:, None]
-    ray2 = tuple(r[:, None] for r in ray)
-    blocked = jnp.zeros((n,), bool)
-    for k in kinds:
-        if k.accel is not None:
-            counts = B.crossings(k.accel, jnp.zeros_like(k.material), ray, tmax, 1)
-            blocked = blocked | (counts[:, 0] != 0)
-            continue
-        N = k.material.shape[0]
-        if N <= UNROLL_SHADOW:  # one row per primitive, or'ed: one elementwise loop
-            for j in range(N):
-                blocked = blocked | (_crossings(k, ray, _prim(k.soa, j), tmax1) > 0)
-        elif N <= BLOCK:
-            # Crossings summed by a matrix-vector product: XLA:CPU runs a max (or sum)
-            # reduction of this (rays, N) tile 5-7x slower than the product.
-            hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
-            blocked = blocked | (jnp.dot(hit, jnp.ones((N,), hit.dtype), precision=_EXACT) > 0)
-        else:
-            P, valid, _ = _blocks(k.soa)
-
-            def body(c, blk):
-                Pb, vb = blk
-                hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
-                return c | (jnp.dot(hit, vb.astype(hit.dtype), precision=_EXACT) > 0), None
-
-            blocked, _ = jax.lax.scan(body, blocked, (P, valid))
-    return blocked
+    surface crosses the open segment ``(0, tmax)``, ``(n,)`` bool: the crossings of
+    :func:`occluder_counts` with every primitive counted as one material."""
+    one = [k._replace(material=jnp.zeros_like(k.material)) for k in kinds]
+    return occluder_counts(one, o, d, tmax, 1)[:, 0] > 0
