@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import vec as V
+from .imageio import srgb_to_linear
 from .materials import material_rows
 from .vec import take_rows
 
@@ -153,18 +154,15 @@ def builtin_image(name: str) -> np.ndarray:
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     img = img[:, :, :3]
-    lin = srgb_to_linear_np(img)
+    # Decoded in float64 (raytrax.imageio's sRGB curve) and rounded once: numpy's
+    # float32 power differs between releases by an ulp, float64 rounded is stable.
+    lin = srgb_to_linear(img)
     if name == "moon":
-        lin = lin * np.asarray([1.0, 0.82, 0.62], dtype=np.float32)
+        lin = lin * np.asarray([1.0, 0.82, 0.62])
     return np.ascontiguousarray(lin, dtype=np.float32)
 
 
 BUILTIN_IMAGES = ("moon", "astronaut", "coffee", "chelsea", "rocket", "camera", "brick", "grass", "gravel")
-
-
-def srgb_to_linear_np(x):
-    x = np.asarray(x, dtype=np.float32)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
 TWO_PI = 2 * math.pi
