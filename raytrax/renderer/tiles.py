@@ -8,12 +8,14 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
 
 from ..camera import cone_spread, sample_positions
 from ..chunks import AXIS, equal_chunks, over_devices, round_robin, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..scene import Scene
+from ..tracing import tangent_seed
 from .options import RenderOptions
 from .whitted import trace
 
@@ -93,7 +95,8 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
             f = radiance(x, on)  # (c, 3)
             return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
 
-        acc, _ = jax.lax.scan(tile, jnp.zeros((k, n_pixels, 3), scene.dtype), xs)
+        acc0 = jnp.zeros((k, n_pixels, 3), scene.dtype) + tangent_seed(scene, scene.dtype)
+        acc, _ = jax.lax.scan(tile, acc0, xs)
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
@@ -142,9 +145,25 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     def image(scene, key):
         return batch_aware(scene, key)
 
-    @image.defjvp
     def _image_jvp(primals, tangents):
-        return jax.jvp(plain, primals, tangents)
+        # Only the leaves with a tangent are differentiated: the others (symbolic
+        # zeros) stay constants of the JVP, so no tangent is computed, stored or
+        # transposed for them.
+        leaves, tdef = jax.tree.flatten(primals)
+        t_leaves = jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
+        on = [not isinstance(t, SymbolicZero) for t in t_leaves]
+
+        def of_live(*live):
+            it = iter(live)
+            return plain(*jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]))
+
+        live_p = [x for x, o in zip(leaves, on) if o]
+        if not live_p:
+            out = plain(*primals)
+            return out, jnp.zeros_like(out)
+        return jax.jvp(of_live, live_p, [t for t, o in zip(t_leaves, on) if o])
+
+    image.defjvp(_image_jvp, symbolic_zeros=True)
 
     return image(scene, key)
 

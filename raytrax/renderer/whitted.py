@@ -36,6 +36,7 @@ from ..lights import LIGHTS
 from ..materials import SHADING_MODELS, facing, interface, material_rows, refract
 from ..scene import Scene
 from ..textures import footprint_widths, hit_with_uv_shifts, needs_footprint, surface_color
+from ..tracing import tangent_seed
 from . import compaction as C_
 from .options import RenderOptions
 
@@ -182,7 +183,8 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
     # of a (2, 10, B, cap) queue; its sample's id in a (2, B, cap) queue (n: none).
     # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
-    queue = (jnp.zeros((2, 10, B, cap), dt), jnp.full((2, B, cap), n, jnp.int32))
+    seed = tangent_seed(scene, dt)
+    queue = (jnp.zeros((2, 10, B, cap), dt) + seed, jnp.full((2, B, cap), n, jnp.int32))
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
 
@@ -262,7 +264,7 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
 
     (*_, radiance), _ = jax.lax.scan(
         depth_body,
-        (queue, jnp.asarray(0, jnp.int32), jnp.zeros((n, 3), dt)),
+        (queue, jnp.asarray(0, jnp.int32), jnp.zeros((n, 3), dt) + seed),
         jnp.arange(st.max_depth + 1, dtype=jnp.int32),
     )
     return radiance.T
