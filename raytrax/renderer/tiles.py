@@ -23,7 +23,8 @@ from .whitted import trace
 def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     """``tile_fn(scene, kinds, x, const)`` for every ``x`` along the leading axis of
     the pytree ``xs`` (``lax.map``, each tile under ``jax.checkpoint`` so that reverse
-    mode holds one tile's rays at a time), sharded over ``n_dev`` devices
+    mode holds one tile's rays at a time; a single tile per device is neither looped
+    over nor recomputed), sharded over ``n_dev`` devices
     (``jax.shard_map``; the number of tiles must be a multiple of ``n_dev``). The
     tiles are dealt to the devices in turn (device ``d`` renders tiles ``d, d + n_dev,
     ...``), so that an image region of costly rays (glass, mirrors) is shared."""
@@ -31,6 +32,11 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     def run(xs, scene_const):
         scene, const = scene_const
         kinds = prepare(scene)
+        if jax.tree.leaves(xs)[0].shape[0] == 1:
+            # One tile (per device): reverse mode would recompute it whole for nothing
+            # (the memory it holds is one tile's either way); no loop, no checkpoint.
+            out = tile_fn(scene, kinds, jax.tree.map(lambda x: x[0], xs), const)
+            return jax.tree.map(lambda y: y[None], out)
         return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
 
     if n_dev <= 1:
@@ -66,7 +72,7 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     pixels of an image of ``opts.settings``' size; see
     :func:`raytrax.camera.rays_through`) with cone spread ``spread``; ``pixel (M,)``
     flat indices, ``weight (M, k)`` (no gradient). The rays are traced in tiles of
-    ``opts.tile_rays`` (each under ``jax.checkpoint``) sharded over
+    ``opts.tile_rays`` (each under ``jax.checkpoint`` where there are several) sharded over
     ``opts.devices``, and each tile is added into the images as it is traced, so
     that memory holds the images and one tile, not every ray's radiance. ``needed
     (M,)`` (no gradient): a tile none of whose rays is needed is skipped."""
@@ -83,20 +89,22 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         scene, spread = scene_spread
         kinds = prepare(scene)
 
-        @jax.checkpoint
         def radiance(x, on):
             def go(x):
                 return trace(scene, kinds, x, spread, opts).T
 
             return jax.lax.cond(on, go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
 
-        def tile(acc, args):
+        def tile(acc, args, radiance):
             x, on, p, w = args
             f = radiance(x, on)  # (c, 3)
             return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
 
         acc0 = jnp.zeros((k, n_pixels, 3), scene.dtype) + tangent_seed(scene, scene.dtype)
-        acc, _ = jax.lax.scan(tile, acc0, xs)
+        if xs[0].shape[0] == 1:  # one tile (per device): no loop, and nothing to recompute in reverse mode
+            acc, _ = tile(acc0, jax.tree.map(lambda x: x[0], xs), radiance)
+        else:
+            acc, _ = jax.lax.scan(lambda a, x: tile(a, x, jax.checkpoint(radiance)), acc0, xs)
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
