@@ -74,6 +74,17 @@ def round_robin(x, n_dev: int, back: bool = False):
     return jnp.swapaxes(x.reshape((a, b) + x.shape[1:]), 0, 1).reshape(x.shape)
 
 
+def map_leading(fn, xs: Any, remat: bool = False):
+    """``jax.lax.map(fn, xs)`` over the leading axis of the pytree ``xs`` (each call
+    under ``jax.checkpoint`` with ``remat``, so that reverse mode holds one entry's
+    intermediates at a time). A single entry is called directly: no loop, and
+    nothing to recompute (reverse mode holds that entry's intermediates either way)."""
+    tm = jax.tree_util.tree_map
+    if jax.tree_util.tree_leaves(xs)[0].shape[0] == 1:
+        return tm(lambda y: y[None], fn(tm(lambda x: x[0], xs)))
+    return jax.lax.map(jax.checkpoint(fn) if remat else fn, xs)
+
+
 def map_chunks(
     fn,
     xs: Any,
@@ -100,7 +111,7 @@ def map_chunks(
     chunks = tm(lambda x: split(x, n, size, in_axis), xs)
 
     def over(xs, c):
-        return jax.lax.map(fn if const is None else (lambda x: fn(x, c)), xs)
+        return map_leading(fn if const is None else (lambda x: fn(x, c)), xs)
 
     if devices > 1:
         if n % devices:
@@ -118,9 +129,6 @@ def map_chunks(
         out = over_devices(gathered, devices, None)(chunks, const)
         if deal:
             out = tm(lambda y: round_robin(y, devices, back=True), out)
-    elif n == 1:  # no loop
-        one = tm(lambda x: x[0], chunks)
-        out = tm(lambda y: y[None], fn(one) if const is None else fn(one, const))
     else:
         out = over(chunks, const)
     return tm(lambda y: join(y, m, out_axis), out)

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from raytrax.chunks import equal_chunks, join, map_chunks, split
+from raytrax.chunks import equal_chunks, join, map_chunks, map_leading, split
 
 
 @pytest.mark.parametrize("m,most,multiple", [(1, 4, 1), (10, 4, 1), (12, 4, 1), (13, 512, 4), (307200, 1 << 18, 1)])
@@ -73,3 +73,19 @@ def test_map_chunks_is_differentiable_over_devices():
     want = jnp.sum(2 * jnp.sin(0.7 * x) * jnp.cos(0.7 * x) * x)
     np.testing.assert_allclose(float(g1), float(want), rtol=1e-5)
     np.testing.assert_allclose(float(g4), float(want), rtol=1e-5)
+
+
+def test_map_leading_one_entry_equals_the_loop_in_value_and_gradient():
+    def loss(s, n, remat):
+        xs = {"a": jnp.linspace(0.5, 1.5, 3 * n, dtype=jnp.float32).reshape(n, 3)}
+        out = map_leading(lambda x: jnp.sin(s * x["a"]) ** 2, xs, remat=remat)
+        assert out.shape == (n, 3)
+        return jnp.sum(out)
+
+    for n, remat in ((1, True), (1, False), (2, True), (2, False)):
+        s = jnp.float32(0.7)
+        g = float(jax.grad(loss)(s, n, remat))
+        xn = jnp.linspace(0.5, 1.5, 3 * n, dtype=jnp.float32)
+        want = float(jnp.sum(2 * jnp.sin(0.7 * xn) * jnp.cos(0.7 * xn) * xn))
+        np.testing.assert_allclose(g, want, rtol=1e-5)
+        np.testing.assert_allclose(float(loss(s, n, remat)), float(jnp.sum(jnp.sin(0.7 * xn) ** 2)), rtol=1e-6)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
 from ..camera import cone_spread, sample_positions
-from ..chunks import AXIS, equal_chunks, over_devices, round_robin, split
+from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..scene import Scene
@@ -32,12 +32,7 @@ def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
     def run(xs, scene_const):
         scene, const = scene_const
         kinds = prepare(scene)
-        if jax.tree.leaves(xs)[0].shape[0] == 1:
-            # One tile (per device): reverse mode would recompute it whole for nothing
-            # (the memory it holds is one tile's either way); no loop, no checkpoint.
-            out = tile_fn(scene, kinds, jax.tree.map(lambda x: x[0], xs), const)
-            return jax.tree.map(lambda y: y[None], out)
-        return jax.lax.map(jax.checkpoint(lambda x: tile_fn(scene, kinds, x, const)), xs)
+        return map_leading(lambda x: tile_fn(scene, kinds, x, const), xs, remat=True)
 
     if n_dev <= 1:
         return run(xs, (scene, const))
@@ -166,9 +161,6 @@ def render_image(scene: Scene, opts: RenderOptions, key):
             return plain(*jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]))
 
         live_p = [x for x, o in zip(leaves, on) if o]
-        if not live_p:
-            out = plain(*primals)
-            return out, jnp.zeros_like(out)
         return jax.jvp(of_live, live_p, [t for t, o in zip(t_leaves, on) if o])
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
