@@ -27,8 +27,10 @@ class Events(NamedTuple):
     sign: jax.Array  # (E,) +-1: g = sign * G is <= 0 on the first sample's side
 
 
-def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
-    """The ray at each event's chain level, for image positions ``xy (2, E)``."""
+def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height, skip=True):
+    """The ray at each event's chain level, for image positions ``xy (2, E)``.
+    ``skip``: a level that no event of the batch reaches is skipped (a
+    conditional); else every level is computed and selected."""
     o, d = rays_through(scene.camera, xy, width, height)
     if ev.chain.shape[0] <= 1:
         return o, d
@@ -46,6 +48,8 @@ def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
             o2, d2, _ = specular_step(P, ns, ids, refr, o, d)
             return V.vsel(go, o2, o), V.vsel(go, d2, d)
 
+        if not skip:
+            return step(*od), None
         return jax.lax.cond(any_in_batch(go), step, lambda o, d: (o, d), *od), None
 
     lvs = jnp.arange(ev.chain.shape[0] - 1, dtype=ev.level.dtype)
@@ -53,10 +57,10 @@ def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height):
     return o, d
 
 
-def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False):
+def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False, skip=True):
     """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``), and
     with ``feature=True`` also the feature of :func:`miss` (0 for depth crossings)."""
-    o, d = chain_ray(scene, P, ns, ev, xy, width, height)
+    o, d = chain_ray(scene, P, ns, ev, xy, width, height, skip)
     ta = first_t(P, ns, ev.p1, o, d)
     tb = first_t(P, ns, ev.p2, o, d)
     shadow = ev.typ == SHADOW

@@ -175,13 +175,24 @@ def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     return Records(*out)
 
 
-def records_equal(r1: Records, r2: Records):
-    """Records ``(.., M)`` equal in every field, ``(M,)``."""
-    eq = jnp.all(r1.hit == r2.hit, 0) & jnp.all(r1.refr == r2.refr, 0) & jnp.all(r1.cell == r2.cell, 0)
-    if r1.first.shape[1]:
-        eq = eq & jnp.all(r1.first == r2.first, (0, 1)) & jnp.all(r1.last == r2.last, (0, 1))
-    return eq
+def pack_records(r: Records):
+    """The fields of records ``(.., M)`` as one ``(D (3 + 2 L), M)`` int32 array (hit,
+    refr, cell, then first and last), so that they are gathered, compared and written
+    as one array; :func:`unpack_records` inverts it."""
+    D, L, M = r.first.shape
+    return jnp.concatenate(
+        [r.hit, r.refr.astype(jnp.int32), r.cell, r.first.reshape(D * L, M), r.last.reshape(D * L, M)]
+    )
 
 
-def records_slice(r: Records, s: slice) -> Records:
-    return Records(*(x[..., s] for x in r))
+def unpack_records(a, depth: int, lights: int) -> Records:
+    """The :class:`Records` of ``depth`` levels and ``lights`` lights packed in ``a`` by
+    :func:`pack_records`."""
+    D, L, M = depth, lights, a.shape[1]
+    return Records(
+        a[:D],
+        a[D : 2 * D] != 0,
+        a[3 * D : 3 * D + D * L].reshape(D, L, M),
+        a[3 * D + D * L :].reshape(D, L, M),
+        a[2 * D : 3 * D],
+    )

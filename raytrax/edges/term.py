@@ -17,7 +17,7 @@ from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
-from .records import Records, object_key, records, records_equal, records_slice
+from .records import object_key, pack_records, records, unpack_records
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -424,15 +424,21 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 )
             return ~inside | (same[:k] & same[k:])
 
+        nr = D * (3 + 2 * L)  # rows of packed records (records.pack_records)
+
         def item(i, st):
             """Work item ``i``: steps 0 and 1 on batch ``i % nfull`` of all sides (``i <
             2 nfull``), then bisection step ``(i - 2 nfull) % (END_STEPS)`` on batch
-            ``(i - 2 nfull) // END_STEPS`` of the sides that still need it."""
-            lo, hi, full, lost, ref_m, ref_p, feat = st
+            ``(i - 2 nfull) // END_STEPS`` of the sides that still need it. The state
+            of every side is two arrays, ``(2, 2E)`` floats (the bracket ``lo, hi``)
+            and ``(3 + 2 nr, 2E)`` integers (``full``, ``lost``, the feature, and the
+            packed records beside the edge point on the minus and the plus side),
+            each read and written as one gather and one scatter."""
+            fl, it = st
             first = i < 2 * nfull
             step = jnp.where(first, i // nfull, 2 + (i - 2 * nfull) % END_STEPS)
             b = jnp.where(first, i % nfull, (i - 2 * nfull) // END_STEPS)
-            need = ~(full | lost) & okd  # a crossing that adds nothing needs no piece
+            need = ~((it[0] != 0) | (it[1] != 0)) & okd  # a crossing that adds nothing needs no piece
             (order,) = jnp.nonzero(need, size=2 * E, fill_value=0)
             cnt = jnp.sum(need)
             pos = b * m + jnp.arange(m)
@@ -440,53 +446,50 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             valid = jnp.where(first, pos < 2 * E, pos < cnt)
 
             def run(st):
-                lo, hi, full, lost, ref_m, ref_p, feat = st
+                fl, it = st
                 sd = jax.tree_util.tree_map(lambda v: v[..., idx], side)
-                lo_i, hi_i = lo[idx], hi[idx]
+                col_f, col_i = fl[:, idx], it[:, idx]
+                lo_i, hi_i = col_f[0], col_f[1]
+                full_i, lost_i, feat_i = col_i[0], col_i[1], col_i[2]
+                old_m, old_p = col_i[3 : 3 + nr], col_i[3 + nr :]
                 mid = jnp.where(step == 0, 0.0, jnp.where(step == 1, hi_i, 0.5 * (lo_i + hi_i)))
                 x, conv, f, r = follow(sd, mid)
-                rm, rp = records_slice(r, slice(0, m)), records_slice(r, slice(m, 2 * m))
-                old_m = jax.tree_util.tree_map(lambda v: v[..., idx], ref_m)
-                old_p = jax.tree_util.tree_map(lambda v: v[..., idx], ref_p)
-                f_ref = jnp.where(step == 0, f, feat[idx])
-                v = conv & (f == f_ref) & records_equal(rm, old_m) & records_equal(rp, old_p)
+                pr = pack_records(r)
+                rm, rp = pr[:, :m], pr[:, m:]
+                f_ref = jnp.where(step == 0, f, feat_i)
+                v = conv & (f == f_ref) & jnp.all(rm == old_m, 0) & jnp.all(rp == old_p, 0)
                 nb = seen(sd, x, r)
+                s0, s1, sb = step == 0, step == 1, step > 1
+                new_i = jnp.concatenate(
+                    [
+                        jnp.stack(
+                            [
+                                jnp.where(s1, (v & nb).astype(jnp.int32), full_i),
+                                jnp.where(s1, (v & ~nb).astype(jnp.int32), lost_i),
+                                jnp.where(s0, f, feat_i),
+                            ]
+                        ),
+                        jnp.where(s0, rm, old_m),
+                        jnp.where(s0, rp, old_p),
+                    ]
+                )
+                new_f = jnp.stack([jnp.where(sb & v, mid, lo_i), jnp.where(sb & ~v, mid, hi_i)])
                 # Only the batch's real slots are written (padding slots are dropped).
                 wi = jnp.where(valid, idx, 2 * E)
-
-                def put(arr, new):
-                    return arr.at[..., wi].set(new, mode="drop")
-
-                s0, s1, sb = step == 0, step == 1, step > 1
-                ref_m = jax.tree_util.tree_map(lambda a, nw, od: put(a, jnp.where(s0, nw, od)), ref_m, rm, old_m)
-                ref_p = jax.tree_util.tree_map(lambda a, nw, od: put(a, jnp.where(s0, nw, od)), ref_p, rp, old_p)
-                feat = put(feat, jnp.where(s0, f, feat[idx]))
-                full = put(full, jnp.where(s1, v & nb, full[idx]))
-                lost = put(lost, jnp.where(s1, v & ~nb, lost[idx]))
-                lo = put(lo, jnp.where(sb & v, mid, lo_i))
-                hi = put(hi, jnp.where(sb & ~v, mid, hi_i))
-                return lo, hi, full, lost, ref_m, ref_p, feat
+                return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi].set(new_i, mode="drop")
 
             return jax.lax.cond(jnp.any(valid), run, lambda st: st, st)
 
-        def ref0(k):
-            return Records(
-                jnp.zeros((D, k), jnp.int32),
-                jnp.zeros((D, k), bool),
-                jnp.zeros((D, L, k), jnp.int32),
-                jnp.zeros((D, L, k), jnp.int32),
-                jnp.zeros((D, k), jnp.int32),
-            )
-
-        no = jnp.zeros(sided.shape, bool)
-        lo, hi, full, lost, ref_m, ref_p, _ = jax.lax.fori_loop(
+        fl, it = jax.lax.fori_loop(
             0,
             2 * nfull + END_STEPS * nfull,
             item,
-            (jnp.zeros_like(sided), sided, no, no, ref0(2 * E), ref0(2 * E), jnp.zeros(sided.shape, jnp.int32)),
+            (jnp.stack([jnp.zeros_like(sided), sided]), jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32)),
         )
-        ref = Records(*(jnp.concatenate([a, b], -1) for a, b in zip(ref_m, ref_p, strict=True)))
-        r_m, r_p = records_slice(ref, slice(0, E)), records_slice(ref, slice(2 * E, 3 * E))
+        lo, hi = fl[0], fl[1]
+        full, lost = it[0] != 0, it[1] != 0
+        r_m = unpack_records(it[3 : 3 + nr, :E], D, L)
+        r_p = unpack_records(it[3 + nr :, :E], D, L)
         lvl = c["level"]
         pre_m = pre_p = jnp.ones_like(ok)
         for q in range(D):
@@ -601,7 +604,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
     # The differentiable part: g at the (fixed) edge point, with the live scene.
-    g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height)
+    g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height, skip=False)
     g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
     term = coef * g[:, None]  # (K, 3)
     img = jnp.zeros((height * width, 3), term.dtype)
