@@ -59,7 +59,9 @@ def chain_ray(scene, P: Prims, ns, ev: Events, xy, width, height, skip=True):
 
 def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False, skip=True):
     """``G(x)`` of each event at image positions ``xy (2, E)`` (before ``sign``), and
-    with ``feature=True`` also the feature of :func:`miss` (0 for depth crossings)."""
+    with ``feature=True`` also the feature of :func:`miss` (0 for depth crossings).
+    ``skip``: as :func:`chain_ray`'s (pass ``False`` where ``G`` is differentiated:
+    the conditional costs more to compile and transpose than the levels it skips)."""
     o, d = chain_ray(scene, P, ns, ev, xy, width, height, skip)
     ta = first_t(P, ns, ev.p1, o, d)
     tb = first_t(P, ns, ev.p2, o, d)

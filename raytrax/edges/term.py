@@ -603,7 +603,8 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     coef = df * res["cbase"][:, None]
     coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
     ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
-    # The differentiable part: g at the (fixed) edge point, with the live scene.
+    # The differentiable part: g at the (fixed) edge point, with the live scene (every
+    # chain level computed: no conditional in what reverse mode transposes).
     g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height, skip=False)
     g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
     term = coef * g[:, None]  # (K, 3)
