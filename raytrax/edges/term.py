@@ -264,52 +264,66 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         def G(ev, x, feature=False):
             return edge_value(sg, P_sg, ns, ev, x, width, height, feature)
 
-        # One batched evaluation (one compiled copy of G) classifies every event:
-        # visibility (which edge function separates the two samples?) and shadows
-        # (is the occluder hit by one shadow segment and missed by the other?).
+        # One loop, one compiled copy of G on E positions per step: steps 0-5 classify
+        # every event (which edge function separates the two samples? is the occluder
+        # hit by one shadow segment and missed by the other?), the remaining steps
+        # bisect for the edge point between the two samples.
         ev_d = mk(zeros + DEPTH, A, B, zeros)
         ev_s = mk(zeros + SHADOW, A, c["occ"], zeros)
         evs = [mk(zeros + MISS, A, B, zeros), mk(zeros + MISS, B, A, zeros), ev_d, ev_d, ev_s, ev_s]
-        vals = G(cat(*evs), jnp.concatenate([xb, xa, xa, xb, xa, xb], 1)).reshape(len(evs), -1)  # pyright: ignore
-        mAb, mBa = vals[0], vals[1]
-        case1 = (A >= 0) & (mAb > 0)
-        case2 = ~case1 & (B >= 0) & (mBa > 0)
-        # Depth crossings: t_A - t_B changes sign between the samples (two surfaces
-        # crossing, or a crease of a convex solid).
-        up = (vals[2] <= 0) & (vals[3] >= 0)
-        down = (vals[2] >= 0) & (vals[3] <= 0)
-        case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
-        typ_v = jnp.where(case1 | case2, MISS, DEPTH)
-        ok_v = case1 | case2 | case3
-        ma, mb = vals[4], vals[5]
-        ok_s = (c["occ"] >= 0) & ((ma <= 0) != (mb <= 0))
-        ev = mk(
-            jnp.where(vis, typ_v, SHADOW),
-            jnp.where(vis, jnp.where(case2, B, A), A),
-            jnp.where(vis, B, c["occ"]),
-            jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)),
+        n_cls = len(evs)
+        ev_cls = Events(*(jnp.stack(f) for f in zip(*evs)))
+        x_cls = jnp.stack([xb, xa, xa, xb, xa, xb])
+
+        def classify(vals):
+            mAb, mBa = vals[0], vals[1]
+            case1 = (A >= 0) & (mAb > 0)
+            case2 = ~case1 & (B >= 0) & (mBa > 0)
+            # Depth crossings: t_A - t_B changes sign between the samples (two surfaces
+            # crossing, or a crease of a convex solid).
+            up = (vals[2] <= 0) & (vals[3] >= 0)
+            down = (vals[2] >= 0) & (vals[3] <= 0)
+            case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
+            typ_v = jnp.where(case1 | case2, MISS, DEPTH)
+            ok_v = case1 | case2 | case3
+            ma, mb = vals[4], vals[5]
+            ok_s = (c["occ"] >= 0) & ((ma <= 0) != (mb <= 0))
+            ev = mk(
+                jnp.where(vis, typ_v, SHADOW),
+                jnp.where(vis, jnp.where(case2, B, A), A),
+                jnp.where(vis, B, c["occ"]),
+                jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)),
+            )
+            return ev, c["live"] & jnp.where(vis, ok_v, ok_s), case2
+
+        def step(i, st):
+            vals, lo, hi = st
+            j = jnp.minimum(i, n_cls - 1)
+            ev_b = classify(vals)[0]
+            cls = i < n_cls
+            ev_i = Events(*(jnp.where(cls, fc[j], fb) for fc, fb in zip(ev_cls, ev_b)))
+            mid = 0.5 * (lo + hi)
+            gv = G(ev_i, jnp.where(cls, x_cls[j], xa + mid[None] * (xb - xa)))
+            neg = ev_b.sign.astype(dt) * gv <= 0  # pyright: ignore
+            vals = vals.at[j].set(jnp.where(cls, gv, vals[j]))  # pyright: ignore
+            return vals, jnp.where(~cls & neg, mid, lo), jnp.where(~cls & ~neg, mid, hi)
+
+        vals, lo, hi = jax.lax.fori_loop(
+            0,
+            n_cls + BISECTION_STEPS,
+            step,
+            (jnp.zeros((n_cls,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
         )
+        ev, ok, case2 = classify(vals)
         sgn = ev.sign.astype(dt)
-        ok = c["live"] & jnp.where(vis, ok_v, ok_s)
         ev2 = cat(ev, ev)
         sgn2 = jnp.concatenate([sgn, sgn])
-
-        def g1(x):
-            return sgn * G(ev, x)
 
         def g2(x):
             return sgn2 * G(ev2, x)
 
-        # Bisection on the events; then both copies of each bracket (the second is
-        # differentiated along y below, and below the two copies follow the edge to
-        # either side).
-        def bisect(_, lohi):
-            lo, hi = lohi
-            mid = 0.5 * (lo + hi)
-            neg = g1(xa + mid[None] * (xb - xa)) <= 0  # pyright: ignore
-            return jnp.where(neg, mid, lo), jnp.where(neg, hi, mid)
-
-        lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, bisect, (jnp.zeros_like(sgn), jnp.ones_like(sgn)))
+        # Both copies of each bracket: the second is differentiated along y below, and
+        # below the two copies follow the edge to either side.
         lo, hi = jnp.concatenate([lo, lo]), jnp.concatenate([hi, hi])
         xa2, xb2 = jnp.concatenate([xa, xa], 1), jnp.concatenate([xb, xb], 1)
         xs2 = xa2 + (0.5 * (lo + hi))[None] * (xb2 - xa2)
