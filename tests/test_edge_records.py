@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from raytrax.edges import Records
-from raytrax.edges.records import pack_records, unpack_records
+from raytrax.edges.records import pack_records, packed_rows, unpack_records
 
 
 @pytest.mark.parametrize("depth, lights", [(1, 0), (1, 2), (3, 1)])
@@ -22,7 +22,8 @@ def test_pack_then_unpack_gives_the_same_records(depth, lights):
         jax.random.randint(k[4], (depth, M), 0, 2, jnp.int32),
     )
     packed = pack_records(r)
-    assert packed.shape == (depth * (3 + 2 * lights), M) and packed.dtype == jnp.int32
+    assert packed.shape == (packed_rows(depth, lights), M) == (depth * (3 + 2 * lights), M)
+    assert packed.dtype == jnp.int32
     back = unpack_records(packed, depth, lights)
     for name, a, b in zip(Records._fields, r, back, strict=True):
         assert a.dtype == b.dtype, name
@@ -31,3 +32,8 @@ def test_pack_then_unpack_gives_the_same_records(depth, lights):
     r2 = r._replace(last=r.last.at[..., 3].add(1)) if lights else r._replace(cell=r.cell.at[0, 3].add(1))
     same = np.asarray(jnp.all(pack_records(r2) == packed, 0))
     assert same.tolist() == [i != 3 for i in range(M)]
+
+
+def test_unpack_refuses_an_array_of_the_wrong_size():
+    with pytest.raises(ValueError, match="expected 5 for depth 1, 1 lights"):
+        unpack_records(jnp.zeros((6, 2), jnp.int32), 1, 1)

@@ -175,6 +175,12 @@ def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     return Records(*out)
 
 
+def packed_rows(depth: int, lights: int) -> int:
+    """Rows of the array :func:`pack_records` makes of records of ``depth`` levels and
+    ``lights`` lights."""
+    return depth * (3 + 2 * lights)
+
+
 def pack_records(r: Records):
     """The fields of records ``(.., M)`` as one ``(D (3 + 2 L), M)`` int32 array (hit,
     refr, cell, then first and last), so that they are gathered, compared and written
@@ -189,6 +195,8 @@ def unpack_records(a, depth: int, lights: int) -> Records:
     """The :class:`Records` of ``depth`` levels and ``lights`` lights packed in ``a`` by
     :func:`pack_records`."""
     D, L, M = depth, lights, a.shape[1]
+    if a.shape[0] != packed_rows(D, L):
+        raise ValueError(f"unpack_records: {a.shape[0]} rows, expected {packed_rows(D, L)} for depth {D}, {L} lights")
     return Records(
         a[:D],
         a[D : 2 * D] != 0,

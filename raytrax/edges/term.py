@@ -17,7 +17,7 @@ from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
-from .records import object_key, pack_records, records, unpack_records
+from .records import object_key, pack_records, packed_rows, records, unpack_records
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -438,7 +438,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 )
             return ~inside | (same[:k] & same[k:])
 
-        nr = D * (3 + 2 * L)  # rows of packed records (records.pack_records)
+        nr = packed_rows(D, L)
 
         def item(i, st):
             """Work item ``i``: steps 0 and 1 on batch ``i % nfull`` of all sides (``i <
