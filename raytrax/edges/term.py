@@ -440,6 +440,11 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
 
         nr = packed_rows(D, L)
 
+        def rows(a):
+            """The integer state ``(3 + 2 nr, ..)`` as its rows: full, lost, feature,
+            and the packed records on the minus and on the plus side."""
+            return a[0], a[1], a[2], a[3 : 3 + nr], a[3 + nr :]
+
         def item(i, st):
             """Work item ``i``: steps 0 and 1 on batch ``i % nfull`` of all sides (``i <
             2 nfull``), then bisection step ``(i - 2 nfull) % (END_STEPS)`` on batch
@@ -452,7 +457,8 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             first = i < 2 * nfull
             step = jnp.where(first, i // nfull, 2 + (i - 2 * nfull) % END_STEPS)
             b = jnp.where(first, i % nfull, (i - 2 * nfull) // END_STEPS)
-            need = ~((it[0] != 0) | (it[1] != 0)) & okd  # a crossing that adds nothing needs no piece
+            full_s, lost_s, _, _, _ = rows(it)
+            need = ~((full_s != 0) | (lost_s != 0)) & okd  # a crossing that adds nothing needs no piece
             (order,) = jnp.nonzero(need, size=2 * E, fill_value=0)
             cnt = jnp.sum(need)
             pos = b * m + jnp.arange(m)
@@ -464,8 +470,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 sd = jax.tree_util.tree_map(lambda v: v[..., idx], side)
                 col_f, col_i = fl[:, idx], it[:, idx]
                 lo_i, hi_i = col_f[0], col_f[1]
-                full_i, lost_i, feat_i = col_i[0], col_i[1], col_i[2]
-                old_m, old_p = col_i[3 : 3 + nr], col_i[3 + nr :]
+                full_i, lost_i, feat_i, old_m, old_p = rows(col_i)
                 mid = jnp.where(step == 0, 0.0, jnp.where(step == 1, hi_i, 0.5 * (lo_i + hi_i)))
                 x, conv, f, r = follow(sd, mid)
                 pr = pack_records(r)
@@ -501,9 +506,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             (jnp.stack([jnp.zeros_like(sided), sided]), jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32)),
         )
         lo, hi = fl[0], fl[1]
-        full, lost = it[0] != 0, it[1] != 0
-        r_m = unpack_records(it[3 : 3 + nr, :E], D, L)
-        r_p = unpack_records(it[3 + nr :, :E], D, L)
+        full_s, lost_s, _, pk_m, pk_p = rows(it)
+        full, lost = full_s != 0, lost_s != 0
+        r_m, r_p = unpack_records(pk_m[:, :E], D, L), unpack_records(pk_p[:, :E], D, L)
         lvl = c["level"]
         pre_m = pre_p = jnp.ones_like(ok)
         for q in range(D):
