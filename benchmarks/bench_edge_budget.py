@@ -1,0 +1,70 @@
+"""Edge mode's cost against its ``edge_budget``: the same value_and_grad with the default
+budget and with smaller ones, compiled in one process and called in alternating rounds.
+
+    python benchmarks/bench_edge_budget.py                               # edge_occluders 64 x 48, spp 16
+    python benchmarks/bench_edge_budget.py --scene glass_over_boxes --budgets 4096,8192
+
+Prints each budget's first call and its steady time (min and median over the rounds), and
+the largest difference of its gradient from the default budget's (0 where the budget holds
+every pair: the same events are found either way).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import raytrax as rt
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="edge_occluders")
+    ap.add_argument("--size", default="64x48")
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--budgets", default="4096", help="comma-separated budgets besides the default")
+    ap.add_argument("--rounds", type=int, default=6)
+    a = ap.parse_args()
+    W, H = (int(v) for v in a.size.split("x"))
+    scene = rt.load_scene(SCENES / f"{a.scene}.toml")
+    params = rt.parameters(scene)
+    budgets = [None] + [int(b) for b in a.budgets.split(",") if b]
+
+    def make(budget):
+        def loss(p):
+            img = rt.render(
+                rt.with_parameters(scene, p), width=W, height=H, spp=a.spp, edge_gradients=True, edge_budget=budget
+            )
+            return jnp.mean(img**2)
+
+        return jax.jit(jax.value_and_grad(loss))
+
+    fs, grads, first = {}, {}, {}
+    for b in budgets:
+        fs[b] = make(b)
+        t = time.perf_counter()
+        grads[b] = jax.block_until_ready(fs[b](params))[1]
+        first[b] = time.perf_counter() - t
+    times = {b: [] for b in budgets}
+    for r in range(a.rounds):
+        for b in budgets if r % 2 else budgets[::-1]:
+            t = time.perf_counter()
+            jax.block_until_ready(fs[b](params))
+            times[b].append(time.perf_counter() - t)
+    print(f"{a.scene} {W} x {H}, spp {a.spp}: value_and_grad with edge_gradients=True, {a.rounds} alternating rounds")
+    print(f"{'edge_budget':>12} {'first s':>8} {'min s':>7} {'median s':>9} {'max |grad - default|':>21}")
+    for b in budgets:
+        ts = sorted(times[b])
+        diff = max(float(jnp.max(jnp.abs(grads[b][k] - grads[None][k]))) for k in grads[None])
+        name = "default" if b is None else str(b)
+        print(f"{name:>12} {first[b]:8.1f} {ts[0]:7.3f} {ts[len(ts) // 2]:9.3f} {diff:21.3g}")
+
+
+if __name__ == "__main__":
+    main()
