@@ -106,7 +106,7 @@ def test_queue_over_depths_derivative_matches_central_differences():
     grad = jax.jit(jax.grad(loss))
     np.testing.assert_allclose(float(jnp.sum(grad(x0) * tangent)), float(fd), rtol=1e-7)
     np.testing.assert_allclose(float(jax.jvp(loss, (x0,), (tangent,))[1]), float(fd), rtol=1e-7)
-    # under vmap (the queue's indices batched too): each example's gradient
+    # under vmap: each example's gradient
     xs = jnp.stack([x0, 0.5 * x0 + 0.1])
     np.testing.assert_allclose(np.asarray(jax.vmap(grad)(xs)[1]), np.asarray(grad(xs[1])), rtol=1e-12)
 
