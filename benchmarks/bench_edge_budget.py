@@ -23,18 +23,45 @@ import raytrax as rt
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
+def _size(text: str) -> tuple[int, int]:
+    """``WxH`` as ``(W, H)``, both positive."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 64x48, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive width and height, got {text!r}")
+    return w, h
+
+
+def _budgets(text: str) -> list[int]:
+    """Comma-separated positive integers."""
+    try:
+        out = [int(b) for b in text.split(",") if b.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 4096,8192, got {text!r}") from None
+    if any(b < 1 for b in out):
+        raise argparse.ArgumentTypeError(f"expected positive budgets, got {text!r}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="edge_occluders")
-    ap.add_argument("--size", default="64x48")
+    ap.add_argument("--size", type=_size, default=(64, 48), help="WIDTHxHEIGHT (default 64x48)")
     ap.add_argument("--spp", type=int, default=16)
-    ap.add_argument("--budgets", default="4096", help="comma-separated budgets besides the default")
+    ap.add_argument("--budgets", type=_budgets, default=[4096], help="comma-separated budgets besides the default")
     ap.add_argument("--rounds", type=int, default=6)
     a = ap.parse_args()
-    W, H = (int(v) for v in a.size.split("x"))
-    scene = rt.load_scene(SCENES / f"{a.scene}.toml")
+    W, H = a.size
+    path = SCENES / f"{a.scene}.toml"
+    if not path.is_file():
+        ap.error(
+            f"--scene: no scene {path.name} in {SCENES} (one of {', '.join(sorted(p.stem for p in SCENES.glob('*.toml')))})"
+        )
+    scene = rt.load_scene(path)
     params = rt.parameters(scene)
-    budgets = [None] + [int(b) for b in a.budgets.split(",") if b]
+    budgets = [None] + a.budgets
 
     def make(budget):
         def loss(p):
