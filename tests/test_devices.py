@@ -85,6 +85,24 @@ def test_sharded_gradient_equals_single_device(scene):
     assert np.abs(np.asarray(g1.lights.position)).max() > 0
 
 
+def test_images_rendered_over_different_device_counts_combine(scene):
+    # A target at many samples and a loss at few shard over different numbers of
+    # devices by default (one per tile, up to the CPU's devices). Every render's image
+    # is on the default device, so the two meet in a loss as any two jax results do.
+    target = rt.render(scene, tile_rays=64, devices=2)
+    four = rt.render(scene, tile_rays=64, devices=4)
+    assert float(jnp.max(jnp.abs(four - target))) <= 1e-6
+    moved = eqx.tree_at(lambda s: s.lights.position, scene, scene.lights.position + 0.5)
+
+    def loss(s, dev):
+        return jnp.mean((rt.render(s, tile_rays=64, devices=dev) - target) ** 2)
+
+    g4 = eqx.filter_grad(lambda s: loss(s, 4))(moved)
+    g1 = eqx.filter_grad(lambda s: loss(s, 1))(moved)
+    np.testing.assert_allclose(g4.lights.position, g1.lights.position, rtol=1e-5, atol=1e-9)
+    assert np.abs(np.asarray(g1.lights.position)).max() > 0
+
+
 def test_bad_device_count_is_a_clear_error(scene):
     with pytest.raises(ValueError, match="devices"):
         rt.render(scene, devices=10_000)

@@ -56,6 +56,8 @@ def render(
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
     tile; elsewhere, and with ``edge_gradients=True``, on the default device.
+    The image is returned on the default device however many rendered it, so
+    images rendered over different numbers of devices combine directly.
     ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
 
     ``edge_gradients=True`` adds the boundary terms of the derivative (moving
@@ -105,5 +107,16 @@ def render(
             )
         if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
-        return render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
-    return render_image_jit(scene, opts, key)
+        img = render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
+    else:
+        img = render_image_jit(scene, opts, key)
+    return _on_default_device(img, n_dev)
+
+
+def _on_default_device(img, n_dev: int):
+    """``img`` of a render sharded over ``n_dev`` devices, placed on the default device as
+    a single-device render's is: images rendered over different numbers of devices (a
+    target at many samples, a loss at few) then combine without a device mismatch."""
+    if n_dev <= 1:
+        return img
+    return jax.device_put(img, jax.devices()[0])
