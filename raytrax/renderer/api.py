@@ -119,4 +119,4 @@ def _on_default_device(img, n_dev: int):
     target at many samples, a loss at few) then combine without a device mismatch."""
     if n_dev <= 1:
         return img
-    return jax.device_put(img, jax.devices()[0])
+    return jax.device_put(img, jax.devices()[0], may_alias=True)
