@@ -56,7 +56,8 @@ def render(
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
     tile; elsewhere, and with ``edge_gradients=True``, on the default device.
-    The image is returned on the default device however many rendered it, so
+    The image is returned on ``jax.devices()[0]`` however many rendered it (where a
+    one-device render's image is, unless jax's default device was changed), so
     images rendered over different numbers of devices combine directly.
     ``tile_rays``: camera rays per tile (memory of reverse mode scales with it).
 
@@ -114,9 +115,10 @@ def render(
 
 
 def _on_default_device(img, n_dev: int):
-    """``img`` of a render sharded over ``n_dev`` devices, placed on the default device as
-    a single-device render's is: images rendered over different numbers of devices (a
-    target at many samples, a loss at few) then combine without a device mismatch."""
+    """``img`` of a render sharded over ``n_dev`` devices, placed on ``jax.devices()[0]``
+    (the first device of its mesh, where a single-device render's image is by default):
+    images rendered over different numbers of devices (a target at many samples, a
+    loss at few) then combine without a device mismatch."""
     if n_dev <= 1:
         return img
     return jax.device_put(img, jax.devices()[0], may_alias=True)
