@@ -28,3 +28,15 @@ def any_in_batch(x):
 def _any_in_batch_vmap(axis_size, in_batched, x):
     del axis_size, in_batched
     return jnp.any(x), False
+
+
+def run_or_zeros(pred, fn, *args):
+    """``fn(*args)`` where the scalar bool ``pred`` holds, else zeros shaped like its
+    outputs (a ``lax.cond``). ``fn`` is traced once: the zeros' shapes come from the
+    trace that the branch reuses (``jax.eval_shape`` of ``fn`` and a ``lax.cond`` on
+    ``fn`` would trace it twice, seconds for a whole tracer)."""
+    f = jax.jit(fn)
+    shapes = jax.eval_shape(f, *args)
+    return jax.lax.cond(
+        pred, f, lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), *args
+    )

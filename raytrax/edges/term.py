@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
+from ..branching import run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
@@ -585,14 +586,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         return out
 
     def solve_or_skip(c, R):
-        shapes = jax.eval_shape(solve, c, R)
-        return jax.lax.cond(
-            jnp.any(c["live"]),
-            solve,
-            lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes),
-            c,
-            R,
-        )
+        return run_or_zeros(jnp.any(c["live"]), solve, c, R)
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
     res = map_chunks(solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=R)

@@ -8,7 +8,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from ..branching import any_in_batch
+from ..branching import any_in_batch, run_or_zeros
 from ..camera import cone_spread
 from ..chunks import equal_chunks, map_chunks
 from ..compile_options import filter_jit
@@ -33,8 +33,7 @@ def map_positions(fn, xy, chunk: int, sel=None, need=None, devices: int = 1):
         x, s = a["xy"], a.get("sel")
         if "need" not in a:
             return fn(x, s)
-        out = jax.eval_shape(fn, x, s)
-        return jax.lax.cond(any_in_batch(a["need"]), fn, lambda *_: jnp.zeros(out.shape, out.dtype), x, s)
+        return run_or_zeros(any_in_batch(a["need"]), fn, x, s)
 
     return map_chunks(run, args, M, n, c, out_axis=0, devices=devices, deal=devices > 1)
 
