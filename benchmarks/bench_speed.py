@@ -360,6 +360,21 @@ def ratio(times, a, b):
     return med([x / y for x, y in zip(times[a], times[b])])
 
 
+def cpu_description() -> str:
+    """The CPU's model and its widest x86 vector instructions, from Linux's
+    ``/proc/cpuinfo`` (elsewhere the platform's name): Mitsuba's LLVM kernels use the
+    widest vectors the CPU has, so the ratios move with them between machines."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return platform.processor() or platform.machine()
+    model = next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), platform.machine())
+    flags = set(next((ln.split(":", 1)[1].split() for ln in lines if ln.startswith("flags")), []))
+    widest = "AVX-512" if "avx512f" in flags else "AVX2, no AVX-512" if "avx2" in flags else "no AVX2"
+    return f"{model}; {widest}"
+
+
 def report(res):
     """Print the tables of a results dict (from a run, or from ``--json``); returns the summary."""
     c = res["config"]
@@ -370,7 +385,7 @@ def report(res):
     print(
         f"git HEAD {res['git_head']}{' (raytrax/ has uncommitted changes)' if res['raytrax_modified'] else ''}; "
         f"raytrax {m['raytrax']}, jax {m['jax']} ({m.get('jax_devices', 1)} CPU devices); Mitsuba {m['mitsuba']} ({m['variant']}), drjit {m['drjit']}; "
-        f"{m['cpus']} CPUs, load average {m['load_start'][0]:.1f} at the start"
+        f"{m['cpus']} CPUs ({m.get('cpu', 'model not recorded')}), load average {m['load_start'][0]:.1f} at the start"
     )
     print(f"physical_scene, spp {c['spp']}, depth {depth}: forward {W} x {H}, gradient {gW} x {gH}\n")
     for k, v in list(fresh.items()) + [("steady (one process)", pr)] + ([("PSNR", psnr)] if psnr else []):
@@ -507,6 +522,7 @@ def main(argv=None):
         raytrax_modified=dirty,
         machine=dict(
             cpus=os.cpu_count(),
+            cpu=cpu_description(),
             processor=platform.processor() or platform.machine(),
             python=platform.python_version(),
             jax=jax.__version__,
