@@ -80,17 +80,42 @@ def phase(op_name: str) -> str:
     return "forward"
 
 
+def image_size(text: str) -> tuple[int, int]:
+    """``WxH`` as ``(W, H)``, for argparse (a clear message on anything else)."""
+    try:
+        W, H = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH such as 320x240, got {text!r}") from None
+    if W < 1 or H < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive width and height, got {text!r}")
+    return W, H
+
+
+def count(minimum: int):
+    """An argparse type: an integer of at least ``minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer of at least {minimum}, got {v}")
+        return v
+
+    return parse
+
+
 def main():
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     ap.add_argument("--task", choices=("grad", "forward"), default="grad")
-    ap.add_argument("--size", default=None, help="WxH (default 320x240 for grad, 640x480 for forward)")
-    ap.add_argument("--spp", type=int, default=4)
-    ap.add_argument("--depth", type=int, default=6)
-    ap.add_argument("--calls", type=int, default=3)
-    ap.add_argument("--top", type=int, default=15)
+    ap.add_argument("--size", type=image_size, default=None, help="WxH (default 320x240 for grad, 640x480 for forward)")
+    ap.add_argument("--spp", type=count(1), default=4)
+    ap.add_argument("--depth", type=count(0), default=6)
+    ap.add_argument("--calls", type=count(1), default=3)
+    ap.add_argument("--top", type=count(0), default=15)
     args = ap.parse_args()
-    size = args.size or ("320x240" if args.task == "grad" else "640x480")
-    W, H = (int(v) for v in size.lower().split("x"))
+    W, H = args.size or ((320, 240) if args.task == "grad" else (640, 480))
 
     import jax
     import jax.numpy as jnp
