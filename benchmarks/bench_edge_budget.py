@@ -19,19 +19,9 @@ import jax
 import jax.numpy as jnp
 
 import raytrax as rt
+from scenes import image_size  # pyright: ignore[reportAttributeAccessIssue]
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
-
-
-def _size(text: str) -> tuple[int, int]:
-    """``WxH`` as ``(W, H)``, both positive."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 64x48, got {text!r}") from None
-    if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive width and height, got {text!r}")
-    return w, h
 
 
 def _budgets(text: str) -> list[int]:
@@ -48,7 +38,7 @@ def _budgets(text: str) -> list[int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="edge_occluders")
-    ap.add_argument("--size", type=_size, default=(64, 48), help="WIDTHxHEIGHT (default 64x48)")
+    ap.add_argument("--size", type=image_size, default=(64, 48), help="WIDTHxHEIGHT (default 64x48)")
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--budgets", type=_budgets, default=[4096], help="comma-separated budgets besides the default")
     ap.add_argument("--rounds", type=int, default=6)

@@ -39,6 +39,8 @@ import tempfile
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
+from scenes import at_least, image_size, physical_scene  # noqa: E402  # pyright: ignore[reportAttributeAccessIssue]
+
 
 def exclusive_times(xplane: str) -> collections.Counter:
     """Event name -> summed exclusive nanoseconds over XLA's worker threads."""
@@ -80,40 +82,14 @@ def phase(op_name: str) -> str:
     return "forward"
 
 
-def image_size(text: str) -> tuple[int, int]:
-    """``WxH`` as ``(W, H)``, for argparse (a clear message on anything else)."""
-    try:
-        W, H = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH such as 320x240, got {text!r}") from None
-    if W < 1 or H < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive width and height, got {text!r}")
-    return W, H
-
-
-def count(minimum: int):
-    """An argparse type: an integer of at least ``minimum``."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer of at least {minimum}, got {v}")
-        return v
-
-    return parse
-
-
 def main():
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
     ap.add_argument("--task", choices=("grad", "forward"), default="grad")
     ap.add_argument("--size", type=image_size, default=None, help="WxH (default 320x240 for grad, 640x480 for forward)")
-    ap.add_argument("--spp", type=count(1), default=4)
-    ap.add_argument("--depth", type=count(0), default=6)
-    ap.add_argument("--calls", type=count(1), default=3)
-    ap.add_argument("--top", type=count(0), default=15)
+    ap.add_argument("--spp", type=at_least(1), default=4)
+    ap.add_argument("--depth", type=at_least(0), default=6)
+    ap.add_argument("--calls", type=at_least(1), default=3)
+    ap.add_argument("--top", type=at_least(0), default=15)
     args = ap.parse_args()
     W, H = args.size or ((320, 240) if args.task == "grad" else (640, 480))
 
@@ -121,9 +97,8 @@ def main():
     import jax.numpy as jnp
 
     import raytrax as rt
-    import scenes
 
-    scene = scenes.physical_scene(W, H, args.spp, args.depth)  # pyright: ignore[reportAttributeAccessIssue]
+    scene = physical_scene(W, H, args.spp, args.depth)
     p = rt.parameters(scene)
     names = [k for k in p if k.startswith("light[") and k.endswith(".position")] + [k for k in p if k.endswith(".ior")]
     q0 = {k: p[k] for k in names}

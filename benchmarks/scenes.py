@@ -237,3 +237,29 @@ def spp_list(text):
     if not v or any(s < 1 or int(s**0.5) ** 2 != s for s in v):
         raise argparse.ArgumentTypeError(f"expected comma-separated square numbers (e.g. 256,1024), got {text!r}")
     return v
+
+
+def image_size(text):
+    """``--size``: ``WxH`` as ``(W, H)``, both positive."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 320x240, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive width and height, got {text!r}")
+    return w, h
+
+
+def at_least(minimum):
+    """An argparse type: an integer of at least ``minimum``."""
+
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer of at least {minimum}, got {v}")
+        return v
+
+    return parse
