@@ -40,6 +40,24 @@ def test_default_devices_are_the_cpu_devices_up_to_the_tiles():
     assert cpu_devices_in_use() == jax.local_device_count()  # the CPU backend (conftest)
 
 
+def test_edge_mode_is_sharded_by_default_only_on_large_grids():
+    import dataclasses
+
+    from raytrax.renderer.api import EDGE_SHARD_SAMPLES, cpu_devices_in_use, default_devices
+
+    st = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "tiny.toml")).settings
+    n = cpu_devices_in_use()
+    assert n >= 2
+    small = dataclasses.replace(st, width=16, height=12, spp=256)  # 49,152 samples
+    assert default_devices(small, 16384, edge_gradients=True) == 1
+    assert default_devices(small, 16384, edge_gradients=False) == 3  # tiles of 64 pixels
+    assert default_devices(dataclasses.replace(small, spp=4), 16384, edge_gradients=False) == 1  # one tile
+    big = dataclasses.replace(st, width=160, height=120, spp=16)  # 307,200 samples
+    assert 160 * 120 * 16 >= EDGE_SHARD_SAMPLES > 16 * 12 * 256
+    assert default_devices(big, 16384, edge_gradients=True) == n
+    assert default_devices(big, 1 << 20, edge_gradients=True) == 1  # one tile of samples
+
+
 _PROBE = "import raytrax, jax; print(jax.local_device_count())"
 
 

@@ -18,10 +18,30 @@ from .tiles import render_image_jit
 release_by_default()
 
 
+# Edge mode is sharded by default from this many grid samples on. Sharded, its program
+# compiles 15-20 % longer (6-9 s on a 2-core CPU) and a call takes 25-30 % less time;
+# below about 10^5 samples the saving per call is too small to repay the compile
+# within a fit's few dozen calls (docs/gradients.md).
+EDGE_SHARD_SAMPLES = 1 << 17
+
+
 def cpu_devices_in_use() -> int:
     """Devices a render shards over by default: the CPU devices where jax's default
     backend is the CPU, else 1."""
     return jax.local_device_count() if jax.default_backend() == "cpu" else 1
+
+
+def default_devices(settings, tile_rays: int, edge_gradients: bool) -> int:
+    """The devices a render of ``settings`` (a scene's :class:`~raytrax.Settings`) shards
+    over when ``devices=None``: the CPU's devices (:func:`cpu_devices_in_use`), at most
+    one per tile of ``tile_rays`` camera rays; with ``edge_gradients``, one below
+    :data:`EDGE_SHARD_SAMPLES` grid samples (``width * height * spp``)."""
+    pixels = settings.width * settings.height
+    if edge_gradients:
+        samples = pixels * settings.spp
+        return 1 if samples < EDGE_SHARD_SAMPLES else min(cpu_devices_in_use(), math.ceil(samples / tile_rays))
+    per_tile = max(1, min(pixels, tile_rays // settings.spp))
+    return min(cpu_devices_in_use(), math.ceil(pixels / per_tile))
 
 
 def render(
@@ -55,7 +75,8 @@ def render(
     ``jax.devices()`` with ``jax.shard_map`` (same image, gradients summed over
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
-    tile; elsewhere, and with ``edge_gradients=True``, on the default device.
+    tile, and with ``edge_gradients=True`` only from :data:`EDGE_SHARD_SAMPLES`
+    grid samples on; elsewhere on the default device.
     The image is returned on ``jax.devices()[0]`` however many rendered it (where a
     one-device render's image is, unless jax's default device was changed), so
     images rendered over different numbers of devices combine directly.
@@ -87,13 +108,8 @@ def render(
         if v is not None
     }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
-    if devices is None and edge_gradients:
-        # Edge mode sharded over two CPU devices measured no faster than on one (its
-        # search runs many small kernels) and compiles longer: one unless asked.
-        n_dev = 1
-    elif devices is None:  # the CPU's devices (one per core, raytrax.cpu_devices), as many as there are tiles
-        per_tile = max(1, min(st.width * st.height, tile_rays // st.spp))
-        n_dev = min(cpu_devices_in_use(), math.ceil(st.width * st.height / per_tile))
+    if devices is None:
+        n_dev = default_devices(st, tile_rays, edge_gradients)
     elif devices == "all":
         n_dev = jax.device_count()
     elif isinstance(devices, int) and 1 <= devices <= jax.device_count():

@@ -72,13 +72,17 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     that memory holds the images and one tile, not every ray's radiance. ``needed
     (M,)`` (no gradient): a tile none of whose rays is needed is skipped."""
     M, k = weight.shape
-    c = max(1, min(M, opts.tile_rays))
     n_dev = opts.devices
-    n_tiles = math.ceil(M / c / n_dev) * n_dev
+    # The fewest equal tiles (a multiple of the devices), dealt to the devices in turn:
+    # the rays come in runs of like cost (the grid's samples, then the quadrature's,
+    # the live ones first), and the tiles past the live ones are skipped.
+    n_tiles, c = equal_chunks(M, opts.tile_rays, n_dev)
     xyt = split(xy, n_tiles, c)
     live = jnp.any(split(needed, n_tiles, c, fill=False), 1)
     pix = split(pixel, n_tiles, c, fill=0)
     wt = split(weight, n_tiles, c, axis=0, fill=0)
+    if n_dev > 1:
+        xyt, live, pix, wt = (round_robin(x, n_dev) for x in (xyt, live, pix, wt))
 
     def run(xs, scene_spread):
         scene, spread = scene_spread
