@@ -52,10 +52,14 @@ def test_edge_mode_is_sharded_by_default_only_on_large_grids():
     assert default_devices(small, 16384, edge_gradients=True) == 1
     assert default_devices(small, 16384, edge_gradients=False) == 3  # tiles of 64 pixels
     assert default_devices(dataclasses.replace(small, spp=4), 16384, edge_gradients=False) == 1  # one tile
-    big = dataclasses.replace(st, width=160, height=120, spp=16)  # 307,200 samples
-    assert 160 * 120 * 16 >= EDGE_SHARD_SAMPLES > 16 * 12 * 256
-    assert default_devices(big, 16384, edge_gradients=True) == n
-    assert default_devices(big, 1 << 20, edge_gradients=True) == 1  # one tile of samples
+    mid = dataclasses.replace(st, width=160, height=120, spp=16)  # 307,200 samples
+    big = dataclasses.replace(st, width=320, height=240, spp=64)  # 4,915,200 samples
+    lo, hi = EDGE_SHARD_SAMPLES
+    assert 16 * 12 * 256 < lo <= 160 * 120 * 16 < hi <= 320 * 240 * 64
+    assert default_devices(mid, 16384, edge_gradients=True) == n
+    assert default_devices(mid, 1 << 20, edge_gradients=True) == 1  # one tile of samples
+    assert default_devices(big, 16384, edge_gradients=True) == 1  # each device would hold every record
+    assert default_devices(big, 16384, edge_gradients=False) == n
 
 
 _PROBE = "import raytrax, jax; print(jax.local_device_count())"

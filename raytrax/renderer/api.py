@@ -18,11 +18,13 @@ from .tiles import render_image_jit
 release_by_default()
 
 
-# Edge mode is sharded by default from this many grid samples on. Sharded, its program
-# compiles 15-20 % longer (6-9 s on a 2-core CPU) and a call takes 25-30 % less time;
-# below about 10^5 samples the saving per call is too small to repay the compile
-# within a fit's few dozen calls (docs/gradients.md).
-EDGE_SHARD_SAMPLES = 1 << 17
+# Edge mode is sharded by default over grids of this many samples (at least, below).
+# Sharded, its program compiles 15-20 % longer (5-9 s on a 2-core CPU) and a call takes
+# 10-30 % less time: below about 10^5 samples the saving is too small to repay the
+# compile within a fit's few dozen calls. Each device holds the records of the whole
+# grid, so past about 2 million samples sharding costs more memory than it saves time
+# (docs/gradients.md).
+EDGE_SHARD_SAMPLES = (1 << 17, 1 << 21)
 
 
 def cpu_devices_in_use() -> int:
@@ -34,12 +36,13 @@ def cpu_devices_in_use() -> int:
 def default_devices(settings, tile_rays: int, edge_gradients: bool) -> int:
     """The devices a render of ``settings`` (a scene's :class:`~raytrax.Settings`) shards
     over when ``devices=None``: the CPU's devices (:func:`cpu_devices_in_use`), at most
-    one per tile of ``tile_rays`` camera rays; with ``edge_gradients``, one below
-    :data:`EDGE_SHARD_SAMPLES` grid samples (``width * height * spp``)."""
+    one per tile of ``tile_rays`` camera rays; with ``edge_gradients``, one unless the
+    grid's samples (``width * height * spp``) are within :data:`EDGE_SHARD_SAMPLES`."""
     pixels = settings.width * settings.height
     if edge_gradients:
         samples = pixels * settings.spp
-        return 1 if samples < EDGE_SHARD_SAMPLES else min(cpu_devices_in_use(), math.ceil(samples / tile_rays))
+        lo, hi = EDGE_SHARD_SAMPLES
+        return min(cpu_devices_in_use(), math.ceil(samples / tile_rays)) if lo <= samples < hi else 1
     per_tile = max(1, min(pixels, tile_rays // settings.spp))
     return min(cpu_devices_in_use(), math.ceil(pixels / per_tile))
 
@@ -75,8 +78,8 @@ def render(
     ``jax.devices()`` with ``jax.shard_map`` (same image, gradients summed over
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
-    tile, and with ``edge_gradients=True`` only from :data:`EDGE_SHARD_SAMPLES`
-    grid samples on; elsewhere on the default device.
+    tile, and with ``edge_gradients=True`` only for grids of 2^17 to 2^21 samples
+    (:func:`default_devices`); elsewhere on the default device.
     The image is returned on ``jax.devices()[0]`` however many rendered it (where a
     one-device render's image is, unless jax's default device was changed), so
     images rendered over different numbers of devices combine directly.
