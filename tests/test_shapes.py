@@ -553,6 +553,11 @@ def test_box_grazing_rays():
     assert t[1] == pytest.approx(4.0, rel=1e-12)
     assert not np.isnan(t[3])  # along a face: either a hit at 4 or a miss, never NaN
     assert t[3] == INF or t[3] == pytest.approx(4.0)
+    # Shadow segments of length 20 along the same rays: through the box (2 crossings) only
+    # inside the slab; along the face 0 or 2, never NaN.
+    n = kernel_t(S.box_crossings, P, o, d, tmin=20.0)[:, 0]
+    assert n[0] == 0 and n[1] == 2 and n[2] == 0
+    assert n[3] in (0, 2)
 
 
 def test_box_uv_on_faces(box_scene):

@@ -76,19 +76,20 @@ def _box_local(ray, P):
 
 
 def _box_slab(ray, P):
+    """Entry and exit distances ``tn, tf`` of the slab test (the box is missed where
+    ``tn > tf`` or either is NaN). No gradient flows here (the search), so the IEEE
+    infinities of ``1 / 0`` do the work of a parallel-ray branch: a ray parallel to a
+    slab gets ``(-inf, inf)`` inside it and an empty interval outside; exactly on its
+    boundary plane ``0 * inf`` makes both NaN, and every comparison then misses."""
     ol, dl = _box_local(ray, P)
     h = [P["hx"], P["hy"], P["hz"]]
     tn, tf = -INF, INF
     for i in range(3):
-        small = jnp.abs(dl[i]) < 1e-30
-        inv = 1.0 / jnp.where(small, 1.0, dl[i])
+        inv = 1.0 / dl[i]
         t1 = (-h[i] - ol[i]) * inv
         t2 = (h[i] - ol[i]) * inv
-        inside_slab = jnp.abs(ol[i]) <= h[i]
-        lo = jnp.where(small, jnp.where(inside_slab, -INF, INF), jnp.minimum(t1, t2))
-        hi = jnp.where(small, jnp.where(inside_slab, INF, -INF), jnp.maximum(t1, t2))
-        tn = jnp.maximum(tn, lo)
-        tf = jnp.minimum(tf, hi)
+        tn = jnp.maximum(tn, jnp.minimum(t1, t2))
+        tf = jnp.minimum(tf, jnp.maximum(t1, t2))
     return tn, tf
 
 
