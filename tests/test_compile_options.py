@@ -36,3 +36,28 @@ def test_a_render_inside_a_users_jit_equals_the_top_level_render():
     nested = jax.jit(lambda s: rt.render(s), compiler_options=rt.compiler_options())(scene)
     np.testing.assert_allclose(np.asarray(nested), np.asarray(top), rtol=1e-6, atol=1e-7)
     assert float(jnp.max(top)) > 0.05
+
+
+def test_a_render_inside_a_users_jit_is_traced_once_under_grad(monkeypatch):
+    # Inside a user's jax.jit, rt.render is traced inline: a nested jit would be traced
+    # for its primal and again for its linearisation under jax.grad (twice the tracing
+    # time of the render, for nothing). Eager (no outer jit), the render stays compiled.
+    from raytrax.renderer import tiles
+
+    calls = []
+    inner = tiles._render_image
+
+    def counted(*args):
+        calls.append(1)
+        return inner(*args)
+
+    monkeypatch.setattr(tiles, "_render_image", counted)
+    jax.clear_caches()  # no trace of an earlier test's render is reused
+    scene = one_sphere_scene(width=8, height=6)
+
+    def loss(r):
+        s = rt.with_parameters(scene, {"object[0].radius": r})
+        return jnp.mean(rt.render(s))
+
+    jax.jit(jax.grad(loss)).trace(jnp.float32(1.0))
+    assert len(calls) == 1
