@@ -9,7 +9,7 @@ import jax
 
 from ..edges import EdgeOptions
 from ..memory import release_by_default
-from ..scene import Scene
+from ..scene import Scene, Settings
 from .edge_mode import render_edges_jit
 from .options import RAYS_PER_TILE, RenderOptions
 from .tiles import render_image_jit
@@ -33,7 +33,7 @@ def cpu_devices_in_use() -> int:
     return jax.local_device_count() if jax.default_backend() == "cpu" else 1
 
 
-def default_devices(settings, tile_rays: int, edge_gradients: bool) -> int:
+def default_devices(settings: Settings, tile_rays: int, edge_gradients: bool) -> int:
     """The devices a render of ``settings`` (a scene's :class:`~raytrax.Settings`) shards
     over when ``devices=None``: the CPU's devices (:func:`cpu_devices_in_use`), at most
     one per tile of ``tile_rays`` camera rays; with ``edge_gradients``, one unless the
