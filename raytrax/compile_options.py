@@ -76,7 +76,7 @@ def compiler_options(backend: str | None = None) -> dict[str, Any]:
     return dict(CPU_OPTIONS) if backend == "cpu" and jaxlib_checked() else {}
 
 
-def _top_level() -> bool:
+def top_level() -> bool:
     """Whether no jax transformation is tracing now: jax accepts compiler options
     only on a top-level ``jax.jit``. False where jax's internals have moved (the
     options are then left out, never wrongly passed)."""
@@ -87,24 +87,11 @@ def _top_level() -> bool:
     return bool(trace_state_clean())
 
 
-def _under_jit() -> bool:
-    """Whether a ``jax.jit`` (or another staging transformation) is tracing now. False
-    where jax's internals have moved."""
-    try:
-        from jax._src.core import unsafe_am_i_under_a_jit
-    except ImportError:  # pragma: no cover - another jax version
-        return False
-    return bool(unsafe_am_i_under_a_jit())
-
-
 def filter_jit(fun):
     """``eqx.filter_jit(fun)``, compiled with :func:`compiler_options` of the default
-    backend when called outside any jax transformation (nested inside ``jax.grad``
-    or ``jax.vmap``, the outer compile's options apply). Called while an outer
-    ``jax.jit`` traces, ``fun`` is traced inline instead: a nested jit would be traced
-    twice under ``grad`` (its primal, then its linearisation), for nothing. The
-    wrappers are made on first use, so that importing raytrax does not start jax's
-    backends."""
+    backend when called outside any jax transformation (nested inside another
+    ``jax.jit`` or ``jax.grad``, the outer compile's options apply). The wrappers are
+    made on first use, so that importing raytrax does not start jax's backends."""
     import equinox as eqx
 
     made: dict[Any, Any] = {}
@@ -113,9 +100,7 @@ def filter_jit(fun):
     def call(*args, **kwargs):
         import jax
 
-        if _under_jit():
-            return fun(*args, **kwargs)
-        key = jax.default_backend() if _top_level() else None
+        key = jax.default_backend() if top_level() else None
         jitted = made.get(key)
         if jitted is None:
             if key is None:

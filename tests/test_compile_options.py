@@ -39,9 +39,8 @@ def test_a_render_inside_a_users_jit_equals_the_top_level_render():
 
 
 def test_a_render_inside_a_users_jit_is_traced_once_under_grad(monkeypatch):
-    # Inside a user's jax.jit, rt.render is traced inline: a nested jit would be traced
-    # for its primal and again for its linearisation under jax.grad (twice the tracing
-    # time of the render, for nothing). Eager (no outer jit), the render stays compiled.
+    # Under jax.grad the render's JVP rule is traced, not its primal as well (a jitted
+    # whole would be traced for its primal, then linearised: twice the tracing time).
     from raytrax.renderer import tiles
 
     calls = []
@@ -52,6 +51,7 @@ def test_a_render_inside_a_users_jit_is_traced_once_under_grad(monkeypatch):
         return inner(*args)
 
     monkeypatch.setattr(tiles, "_render_image", counted)
+    monkeypatch.setattr(tiles, "_render_image_jit", tiles.filter_jit(counted))
     jax.clear_caches()  # no trace of an earlier test's render is reused
     scene = one_sphere_scene(width=8, height=6)
 

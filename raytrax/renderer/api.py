@@ -7,12 +7,13 @@ import math
 
 import jax
 
+from ..compile_options import top_level
 from ..edges import EdgeOptions
 from ..memory import release_by_default
 from ..scene import Scene, Settings
 from .edge_mode import render_edges_jit
 from .options import RAYS_PER_TILE, RenderOptions
-from .tiles import render_image_jit
+from .tiles import render_image, render_image_jit
 
 # A render's first call compiles a large program: hand its memory back afterwards.
 release_by_default()
@@ -129,7 +130,10 @@ def render(
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
         img = render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
     else:
-        img = render_image_jit(scene, opts, key)
+        # Outside any transformation, one jitted program; under one (a jax.grad, jax.vmap
+        # or a user's jax.jit), the render and its JVP rule are jitted apart, so that
+        # each is traced only where the transformation needs it.
+        img = render_image_jit(scene, opts, key) if top_level() else render_image(scene, opts, key, compiled_parts=True)
     return _on_default_device(img, n_dev)
 
 

@@ -115,7 +115,20 @@ def _only_lights_batched(in_batched) -> bool:
     return not any(jax.tree.leaves((rest, key_b)))
 
 
-def render_image(scene: Scene, opts: RenderOptions, key):
+def _jvp_of_live(opts: RenderOptions, tdef, on, live_p, live_t, dead):
+    """JVP of the plain render of ``(scene, key)`` (flattened as ``tdef``) along the
+    leaves that ``on`` marks (``live_p``, tangents ``live_t``); the other leaves
+    (``dead``) stay constants: no tangent is computed, stored or transposed for them."""
+
+    def of_live(*live):
+        it, rest = iter(live), iter(dead)
+        scene, key = jax.tree.unflatten(tdef, [next(it) if o else next(rest) for o in on])
+        return _render_image(scene, opts, key)
+
+    return jax.jvp(of_live, tuple(live_p), tuple(live_t))
+
+
+def render_image(scene: Scene, opts: RenderOptions, key, compiled_parts: bool = False):
     """The ``(H, W, 3)`` image of ``scene`` (the tiles of :func:`map_tiles`).
 
     Under ``jax.vmap`` a batch whose only batched leaves are light parameters
@@ -125,10 +138,18 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     about twice as much (the dead-ray skipping and the queue's scatters run for
     the whole batch). Derivatives go through the plain render (a
     ``jax.custom_jvp`` whose rule is the render's own JVP), so ``jax.grad``,
-    ``jax.jacfwd`` and their ``vmap`` are those of the plain render."""
+    ``jax.jacfwd`` and their ``vmap`` are those of the plain render.
+
+    ``compiled_parts``: the render and its JVP rule are each a jitted function,
+    called by these rules (:func:`render_image_jit` jits the whole instead, for a
+    call outside any transformation). Under ``jax.grad`` (eager or inside a
+    ``jax.jit``) only the JVP rule is traced; a jitted whole would be traced for
+    its primal first, then for its JVP when linearised."""
+    plain_fn = _render_image_jit if compiled_parts else _render_image
+    jvp_fn = _jvp_of_live_jit if compiled_parts else _jvp_of_live
 
     def plain(scene, key):
-        return _render_image(scene, opts, key)
+        return plain_fn(scene, opts, key)
 
     @jax.custom_batching.custom_vmap
     def batch_aware(scene, key):
@@ -154,18 +175,13 @@ def render_image(scene: Scene, opts: RenderOptions, key):
 
     def _image_jvp(primals, tangents):
         # Only the leaves with a tangent are differentiated: the others (symbolic
-        # zeros) stay constants of the JVP, so no tangent is computed, stored or
-        # transposed for them.
+        # zeros) stay constants of the JVP.
         leaves, tdef = jax.tree.flatten(primals)
         t_leaves = jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
-        on = [not isinstance(t, SymbolicZero) for t in t_leaves]
-
-        def of_live(*live):
-            it = iter(live)
-            return plain(*jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]))
-
+        on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
         live_p = [x for x, o in zip(leaves, on) if o]
-        return jax.jvp(of_live, live_p, [t for t, o in zip(t_leaves, on) if o])
+        live_t = [t for t, o in zip(t_leaves, on) if o]
+        return jvp_fn(opts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
 
@@ -173,3 +189,5 @@ def render_image(scene: Scene, opts: RenderOptions, key):
 
 
 render_image_jit = filter_jit(render_image)
+_render_image_jit = filter_jit(_render_image)
+_jvp_of_live_jit = filter_jit(_jvp_of_live)
