@@ -50,7 +50,7 @@ def test_edge_mode_is_sharded_by_default_only_on_large_grids():
     assert n >= 2
     small = dataclasses.replace(st, width=16, height=12, spp=256)  # 49,152 samples
     assert default_devices(small, 16384, edge_gradients=True) == 1
-    assert default_devices(small, 16384, edge_gradients=False) == 3  # tiles of 64 pixels
+    assert default_devices(small, 16384, edge_gradients=False) == min(n, 3)  # tiles of 64 pixels
     assert default_devices(dataclasses.replace(small, spp=4), 16384, edge_gradients=False) == 1  # one tile
     mid = dataclasses.replace(st, width=160, height=120, spp=16)  # 307,200 samples
     big = dataclasses.replace(st, width=320, height=240, spp=64)  # 4,915,200 samples

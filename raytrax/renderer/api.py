@@ -133,7 +133,7 @@ def render(
         # Outside any transformation, one jitted program; under one (a jax.grad, jax.vmap
         # or a user's jax.jit), the render and its JVP rule are jitted apart, so that
         # each is traced only where the transformation needs it.
-        img = render_image_jit(scene, opts, key) if top_level() else render_image(scene, opts, key, compiled_parts=True)
+        img = (render_image_jit if top_level() else render_image)(scene, opts, key)
     return _on_default_device(img, n_dev)
 
 

@@ -128,7 +128,7 @@ def _jvp_of_live(opts: RenderOptions, tdef, on, live_p, live_t, dead):
     return jax.jvp(of_live, tuple(live_p), tuple(live_t))
 
 
-def render_image(scene: Scene, opts: RenderOptions, key, compiled_parts: bool = False):
+def render_image(scene: Scene, opts: RenderOptions, key):
     """The ``(H, W, 3)`` image of ``scene`` (the tiles of :func:`map_tiles`).
 
     Under ``jax.vmap`` a batch whose only batched leaves are light parameters
@@ -140,16 +140,14 @@ def render_image(scene: Scene, opts: RenderOptions, key, compiled_parts: bool = 
     ``jax.custom_jvp`` whose rule is the render's own JVP), so ``jax.grad``,
     ``jax.jacfwd`` and their ``vmap`` are those of the plain render.
 
-    ``compiled_parts``: the render and its JVP rule are each a jitted function,
-    called by these rules (:func:`render_image_jit` jits the whole instead, for a
-    call outside any transformation). Under ``jax.grad`` (eager or inside a
-    ``jax.jit``) only the JVP rule is traced; a jitted whole would be traced for
-    its primal first, then for its JVP when linearised."""
-    plain_fn = _render_image_jit if compiled_parts else _render_image
-    jvp_fn = _jvp_of_live_jit if compiled_parts else _jvp_of_live
+    The render and its JVP rule are each a jitted function, called by these
+    rules: under ``jax.grad`` (eager or inside a ``jax.jit``) only the JVP rule is
+    traced, where a jitted whole would be traced for its primal first, then for
+    its JVP when linearised. Outside any transformation call
+    :func:`render_image_jit` (compiled with raytrax's compiler options)."""
 
     def plain(scene, key):
-        return plain_fn(scene, opts, key)
+        return _render_image_jit(scene, opts, key)
 
     @jax.custom_batching.custom_vmap
     def batch_aware(scene, key):
@@ -181,7 +179,7 @@ def render_image(scene: Scene, opts: RenderOptions, key, compiled_parts: bool = 
         on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
         live_p = [x for x, o in zip(leaves, on) if o]
         live_t = [t for t, o in zip(t_leaves, on) if o]
-        return jvp_fn(opts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
+        return _jvp_of_live_jit(opts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
 
