@@ -321,7 +321,7 @@ def _start_loss(problem, z0):
     # structure, so this reuses the compilation that rendered the target.
     img0 = problem.image(z0)
     loss0 = float(problem.total_loss(img0, z0))
-    if not bool(jnp.all(jnp.isfinite(img0))):
+    if not bool(np.isfinite(np.asarray(img0)).all()):
         raise FloatingPointError(
             "the render at the start contains non-finite values (nan or inf); check the start parameters"
         )

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 from .. import textures as tx
 from .. import vec as V
+from ..branching import any_true
 from ..camera import rays_through
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import nearest_kind, no_hit, offset_scale
@@ -92,7 +93,7 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
         start, end, per = kind_ids(off, k)
         sel = (gid >= start) & (gid < end)
         idx = jnp.where(sel, (gid - start) // per, 0)
-        _, _, uvk, _ = jax.lax.cond(jnp.any(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t, 0.0))
+        _, _, uvk, _ = jax.lax.cond(any_true(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t, 0.0))
         uv = jnp.where(sel[None], uvk, uv)
     return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
 

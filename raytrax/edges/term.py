@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
-from ..branching import run_or_zeros
+from ..branching import any_true, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
@@ -498,7 +498,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
                 wi = jnp.where(valid, idx, 2 * E)
                 return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi].set(new_i, mode="drop")
 
-            return jax.lax.cond(jnp.any(valid), run, lambda st: st, st)
+            return jax.lax.cond(any_true(valid), run, lambda st: st, st)
 
         fl, it = jax.lax.fori_loop(
             0,
@@ -586,7 +586,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
         return out
 
     def solve_or_skip(c, R):
-        return run_or_zeros(jnp.any(c["live"]), solve, c, R)
+        return run_or_zeros(any_true(c["live"]), solve, c, R)
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
     res = map_chunks(solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=R)

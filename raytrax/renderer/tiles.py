@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
+from ..branching import any_true
 from ..camera import cone_spread, sample_positions
 from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin, split
 from ..compile_options import filter_jit
@@ -78,7 +79,7 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     # the live ones first), and the tiles past the live ones are skipped.
     n_tiles, c = equal_chunks(M, opts.tile_rays, n_dev)
     xyt = split(xy, n_tiles, c)
-    live = jnp.any(split(needed, n_tiles, c, fill=False), 1)
+    live = any_true(split(needed, n_tiles, c, fill=False), 1)
     pix = split(pixel, n_tiles, c, fill=0)
     wt = split(weight, n_tiles, c, axis=0, fill=0)
     if n_dev > 1:
