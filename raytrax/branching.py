@@ -34,6 +34,21 @@ def any_true(x, axis=None) -> jax.Array:
     return jnp.max(b, axis=axis, initial=0) > 0
 
 
+def count_true(x, dtype=None) -> jax.Array:
+    """``jnp.sum(x)`` of a boolean array (in ``dtype``; default: jax's default integer,
+    as ``jnp.sum`` gives), compiled as :func:`any_true` is: a float32 sum (exact below
+    2^24 elements), which XLA:CPU hands to YNNPACK from :data:`YNN_MIN` elements on,
+    where an integer sum is emitted as 32-wide windows."""
+    b = jnp.asarray(x).reshape(-1)
+    dtype = jnp.sum(jnp.zeros((1,), bool)).dtype if dtype is None else dtype
+    if b.shape[0] >= 2**24 or b.shape[0] <= 32:
+        return jnp.sum(b, dtype=dtype)
+    f = b.astype(jnp.float32)
+    if b.shape[0] < YNN_MIN:
+        f = jnp.concatenate([f, jnp.zeros((YNN_MIN - b.shape[0],), jnp.float32)])
+    return jnp.sum(f).astype(dtype)
+
+
 def all_true(x, axis=None) -> jax.Array:
     """``jnp.all(x, axis)``, compiled as :func:`any_true` is."""
     return ~any_true(~jnp.asarray(x, bool), axis)

@@ -41,6 +41,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from . import vec as V
+from .branching import count_true
 from .shapes.base import check_shape
 from .shapes.triangles import tri_t
 
@@ -207,7 +208,7 @@ def _visit(keys, const, state, body, more, shrink=None):
 
         def cond(c):
             _, k, _, st = c
-            return jnp.sum(more(k, st).astype(jnp.int32)) > small
+            return count_true(more(k, st)) > small
 
         def step(c):
             keys, k, leaf, st = c

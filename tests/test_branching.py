@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from raytrax.branching import all_true, any_in_batch, any_true, run_or_zeros
+from raytrax.branching import all_true, any_in_batch, any_true, count_true, run_or_zeros
 
 
 def _fn(x, k):
@@ -70,6 +70,16 @@ def test_any_true_and_all_true_equal_jnp_any_and_all():
             assert np.array_equal(np.asarray(any_true(x, axis)), np.any(x, axis)), (shape, axis, p)
             assert np.array_equal(np.asarray(all_true(x, axis)), np.all(x, axis)), (shape, axis, p)
     assert any_true(jnp.ones(3, bool)).dtype == jnp.bool_
+
+
+def test_count_true_equals_the_sum():
+    rng = np.random.default_rng(1)
+    for n in (0, 5, 33, 1000, 4096, 70000):
+        for p in (0.0, 0.3, 1.0):
+            x = rng.random(n) < p
+            c = count_true(jnp.asarray(x))
+            assert int(c) == int(x.sum()) and c.dtype == jnp.sum(jnp.asarray(x)).dtype, (n, p)
+    assert count_true(jnp.ones((3, 50), bool), jnp.int32).dtype == jnp.int32
 
 
 def test_any_true_compiles_without_boolean_reduce_windows():

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from .. import textures as tx
 from .. import vec as V
-from ..branching import any_true
+from ..branching import any_true, count_true
 from ..camera import rays_through
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import nearest_kind, no_hit, offset_scale
@@ -151,7 +151,7 @@ def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
 
     def level(carry, _):
         o, d, alive = carry
-        cnt = jnp.sum(alive)
+        cnt = count_true(alive)
         (order,) = jnp.nonzero(alive, size=nsb * sb, fill_value=M)
         init = ((o, d, jnp.zeros_like(alive)), dead(o, d, alive)[1])
 

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
-from ..branching import any_true, run_or_zeros
+from ..branching import any_true, count_true, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
@@ -208,7 +208,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     # then their slots), so that no prefix sum runs over every pair's every slot.
     has = per_pair > 0
     (p_idx,) = jnp.nonzero(has, size=K, fill_value=0)
-    sub = act[p_idx] & (jnp.arange(K) < jnp.sum(has))[:, None]
+    sub = act[p_idx] & (jnp.arange(K) < count_true(has))[:, None]
     (flat,) = jnp.nonzero(sub.ravel(), size=K, fill_value=0)
     flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
@@ -461,7 +461,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             full_s, lost_s, _, _, _ = rows(it)
             need = ~((full_s != 0) | (lost_s != 0)) & okd  # a crossing that adds nothing needs no piece
             (order,) = jnp.nonzero(need, size=2 * E, fill_value=0)
-            cnt = jnp.sum(need)
+            cnt = count_true(need)
             pos = b * m + jnp.arange(m)
             idx = jnp.where(first, jnp.minimum(pos, 2 * E - 1), order[jnp.minimum(pos, 2 * E - 1)])
             valid = jnp.where(first, pos < 2 * E, pos < cnt)

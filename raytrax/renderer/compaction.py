@@ -47,9 +47,10 @@ def pack(alive, width: int):
     (the live entries in order, then ``k``: none), ``dst (k,)``, the packed position
     of each entry (``width`` where not alive), and the number of live entries."""
     (k,) = alive.shape
-    dst = jnp.where(alive, jnp.cumsum(alive, dtype=jnp.int32) - 1, width)
+    rank = jnp.cumsum(alive, dtype=jnp.int32)  # its last entry is the count
+    dst = jnp.where(alive, rank - 1, width)
     src = jnp.full((width,), k, jnp.int32).at[dst].set(jnp.arange(k, dtype=jnp.int32), mode="drop", unique_indices=True)
-    return src, dst, jnp.sum(alive, dtype=jnp.int32)
+    return src, dst, rank[-1]
 
 
 PACK_CHUNK = 1024
