@@ -14,44 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-YNN_MIN = 4096
-"""Elements from which XLA:CPU hands a byte reduction to its YNNPACK library (below,
-it emits the reduction itself, as the 32-wide windows that compile slowly)."""
-
-
-def any_true(x, axis=None) -> jax.Array:
-    """``jnp.any(x, axis)``, compiled cheaply: XLA:CPU rewrites a boolean reduction
-    of more than 32 elements into 32-wide windows of ``i1`` vectors (up to 195 KB of
-    LLVM IR each, 0.13 s to compile at 4096 elements), and a render holds dozens. A
-    whole-array reduction is the maximum of the bytes, padded with zeros to
-    :data:`YNN_MIN` elements (XLA then calls YNNPACK: 0.01 s); one along ``axis``
-    is the bytes' maximum."""
-    b = jnp.asarray(x).astype(jnp.uint8)
-    if axis is None:
-        b = b.reshape(-1)
-        if 32 < b.shape[0] < YNN_MIN:
-            b = jnp.concatenate([b, jnp.zeros((YNN_MIN - b.shape[0],), jnp.uint8)])
-    return jnp.max(b, axis=axis, initial=0) > 0
-
-
-def count_true(x, dtype=None) -> jax.Array:
-    """``jnp.sum(x)`` of a boolean array (in ``dtype``; default: jax's default integer,
-    as ``jnp.sum`` gives), compiled as :func:`any_true` is: a float32 sum (exact below
-    2^24 elements), which XLA:CPU hands to YNNPACK from :data:`YNN_MIN` elements on,
-    where an integer sum is emitted as 32-wide windows."""
-    b = jnp.asarray(x).reshape(-1)
-    dtype = jnp.sum(jnp.zeros((1,), bool)).dtype if dtype is None else dtype
-    if b.shape[0] >= 2**24 or b.shape[0] <= 32:
-        return jnp.sum(b, dtype=dtype)
-    f = b.astype(jnp.float32)
-    if b.shape[0] < YNN_MIN:
-        f = jnp.concatenate([f, jnp.zeros((YNN_MIN - b.shape[0],), jnp.float32)])
-    return jnp.sum(f).astype(dtype)
-
-
-def all_true(x, axis=None) -> jax.Array:
-    """``jnp.all(x, axis)``, compiled as :func:`any_true` is."""
-    return ~any_true(~jnp.asarray(x, bool), axis)
+from .masks import any_true
 
 
 @jax.custom_batching.custom_vmap

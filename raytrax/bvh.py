@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from . import vec as V
-from .branching import count_true
+from .masks import count_true, true_indices
 from .shapes.base import check_shape
 from .shapes.triangles import tri_t
 
@@ -223,7 +223,7 @@ def _visit(keys, const, state, body, more, shrink=None):
         if not small:
             return state
         act = more(k, state)
-        (idx,) = jnp.nonzero(act, size=small, fill_value=m)
+        idx = true_indices(act, small, m)
         sub_keys = jnp.where((idx < m)[:, None], keys[jnp.minimum(idx, m - 1)], jnp.asarray(INF, keys.dtype))
         safe = jnp.minimum(idx, m - 1)
         sub = run(sub_keys, _take(const, safe), _take(state, safe), level + 1)

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from raytrax.branching import all_true, any_in_batch, any_true, count_true, run_or_zeros
+from raytrax.branching import any_in_batch, run_or_zeros
 
 
 def _fn(x, k):
@@ -60,34 +60,3 @@ def test_any_in_batch_keeps_a_vmapped_branch_a_branch():
     np.testing.assert_array_equal(np.asarray(out), [-2.0, 3.0])  # -3 ran the branch too (not zero)
     none = jax.vmap(f)(jnp.asarray([-1.0, -2.0], jnp.float32))
     np.testing.assert_array_equal(np.asarray(none), [0.0, 0.0])
-
-
-def test_any_true_and_all_true_equal_jnp_any_and_all():
-    rng = np.random.default_rng(0)
-    for shape, axis in [((7,), None), ((5000,), None), ((3, 40), 1), ((3, 40), 0), ((2, 3, 4), (0, 2)), ((0,), None)]:
-        for p in (0.0, 0.01, 0.5, 1.0):
-            x = rng.random(shape) < p
-            assert np.array_equal(np.asarray(any_true(x, axis)), np.any(x, axis)), (shape, axis, p)
-            assert np.array_equal(np.asarray(all_true(x, axis)), np.all(x, axis)), (shape, axis, p)
-    assert any_true(jnp.ones(3, bool)).dtype == jnp.bool_
-
-
-def test_count_true_equals_the_sum():
-    rng = np.random.default_rng(1)
-    for n in (0, 5, 33, 1000, 4096, 70000):
-        for p in (0.0, 0.3, 1.0):
-            x = rng.random(n) < p
-            c = count_true(jnp.asarray(x))
-            assert int(c) == int(x.sum()) and c.dtype == jnp.sum(jnp.asarray(x)).dtype, (n, p)
-    assert count_true(jnp.ones((3, 50), bool), jnp.int32).dtype == jnp.int32
-
-
-def test_any_true_compiles_without_boolean_reduce_windows():
-    # jnp.any over a few thousand rays compiles to 32-wide reduce-windows of i1 vectors on
-    # XLA:CPU, several times the compile time of the byte reduction any_true uses.
-    x = jnp.zeros(4096, jnp.float32)
-    hlo = jax.jit(lambda v: any_true(v > 0)).lower(x).compile().as_text() or ""
-    assert "pred[128]{0} reduce-window" not in hlo
-    ref = jax.jit(lambda v: jnp.any(v > 0)).lower(x).compile().as_text() or ""
-    if jax.default_backend() == "cpu" and "reduce-window" in ref:  # the pattern any_true avoids is still XLA's
-        assert hlo.count("reduce-window") < ref.count("reduce-window")

@@ -11,10 +11,10 @@ import jax.numpy as jnp
 
 from .. import textures as tx
 from .. import vec as V
-from ..branching import any_true, count_true
 from ..camera import rays_through
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import nearest_kind, no_hit, offset_scale
+from ..masks import any_true, count_true, true_indices
 from ..materials import refracts_dominantly
 from ..textures import pattern_cell
 from .prims import Prims, kind_ids, specular_step
@@ -152,7 +152,7 @@ def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
     def level(carry, _):
         o, d, alive = carry
         cnt = count_true(alive)
-        (order,) = jnp.nonzero(alive, size=nsb * sb, fill_value=M)
+        order = true_indices(alive, nsb * sb, M)
         init = ((o, d, jnp.zeros_like(alive)), dead(o, d, alive)[1])
 
         def sub(j, acc):

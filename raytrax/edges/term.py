@@ -13,9 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
-from ..branching import any_true, count_true, run_or_zeros
+from ..branching import run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
+from ..masks import any_true, count_true, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
 from .records import object_key, pack_records, packed_rows, records, unpack_records
@@ -207,9 +208,9 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     # Events in pair-major order, compacted in two steps (the pairs with an event,
     # then their slots), so that no prefix sum runs over every pair's every slot.
     has = per_pair > 0
-    (p_idx,) = jnp.nonzero(has, size=K, fill_value=0)
+    p_idx = true_indices(has, K)
     sub = act[p_idx] & (jnp.arange(K) < count_true(has))[:, None]
-    (flat,) = jnp.nonzero(sub.ravel(), size=K, fill_value=0)
+    flat = true_indices(sub.ravel(), K)
     flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
     pair = p_idx.astype(jnp.int32)[flat // nslot]
@@ -460,7 +461,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
             b = jnp.where(first, i % nfull, (i - 2 * nfull) // END_STEPS)
             full_s, lost_s, _, _, _ = rows(it)
             need = ~((full_s != 0) | (lost_s != 0)) & okd  # a crossing that adds nothing needs no piece
-            (order,) = jnp.nonzero(need, size=2 * E, fill_value=0)
+            order = true_indices(need, 2 * E)
             cnt = count_true(need)
             pos = b * m + jnp.arange(m)
             idx = jnp.where(first, jnp.minimum(pos, 2 * E - 1), order[jnp.minimum(pos, 2 * E - 1)])

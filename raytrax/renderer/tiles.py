@@ -10,11 +10,11 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
-from ..branching import any_true
 from ..camera import cone_spread, sample_positions
 from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin, split
 from ..compile_options import filter_jit
 from ..intersect import prepare
+from ..masks import any_true
 from ..scene import Scene
 from ..tracing import tangent_seed
 from .options import RenderOptions
