@@ -55,6 +55,45 @@ def all_true(x, axis=None) -> jax.Array:
     return ~any_true(~jnp.asarray(x, bool), axis)
 
 
+PREFIX_ROW = 64
+"""Row length of :func:`prefix_count`'s two-level sum."""
+
+
+def _prefix_sum(x):
+    """Inclusive prefix sum of the float32 counts ``x (n,)``, exact below 2^24."""
+    (n,) = x.shape
+    R = PREFIX_ROW
+    rows = -(-n // R)
+    if rows * R > n:
+        x = jnp.concatenate([x, jnp.zeros((rows * R - n,), x.dtype)])
+    i = jnp.arange(R)
+    upper = (i[:, None] <= i[None, :]).astype(x.dtype)  # (R, R): column c sums entries 0..c
+    hi = jax.lax.Precision.HIGHEST
+    within = jnp.dot(x.reshape(rows, R), upper, precision=hi)  # (rows, R)
+    totals = within[:, -1]
+    if rows <= 4 * R:
+        r = jnp.arange(rows)
+        before = (r[:, None] < r[None, :]).astype(x.dtype)  # (rows, rows): the rows above each
+        offset = jnp.dot(totals, before, precision=hi)
+    else:  # the rows' own prefix sum, one level up
+        offset = _prefix_sum(totals) - totals
+    return (within + offset[:, None]).reshape(rows * R)[:n]
+
+
+def prefix_count(mask) -> jax.Array:
+    """``jnp.cumsum(mask, dtype=jnp.int32)`` of a 1-D boolean ``mask``: the number of
+    true entries up to and including each position. As small matrix products in
+    float32 (exact: counts below 2^24), rows of :data:`PREFIX_ROW` entries summed
+    within each row, then the rows' totals summed before each row (one more level
+    above 16,384 entries). XLA:CPU calls a library for the products, where it emits
+    ``jnp.cumsum`` as three levels of reduce-windows: at 4,096 entries 0.055 s to
+    compile against 0.084 s, and 44 us a call against 112 us."""
+    (n,) = mask.shape
+    if n < 2 * PREFIX_ROW or n >= 2**24:
+        return jnp.cumsum(mask, dtype=jnp.int32)
+    return _prefix_sum(mask.astype(jnp.float32)).astype(jnp.int32)
+
+
 def true_indices(mask, size: int, fill_value: int = 0, dtype=None) -> jax.Array:
     """``jnp.nonzero(mask, size=size, fill_value=fill_value)[0]`` for a 1-D ``mask``:
     the indices where it holds, in order, then ``fill_value`` (``dtype``: default
@@ -62,7 +101,7 @@ def true_indices(mask, size: int, fill_value: int = 0, dtype=None) -> jax.Array:
     (``jnp.nonzero`` compiles about twice as long and runs no faster)."""
     (n,) = mask.shape
     dtype = jnp.sum(jnp.zeros((1,), bool)).dtype if dtype is None else dtype
-    rank = jnp.cumsum(mask, dtype=jnp.int32)
+    rank = prefix_count(mask)
     dst = jnp.where(mask, rank - 1, size)  # past the end: dropped
     out = jnp.full((size,), fill_value, dtype)
     return out.at[dst].set(jnp.arange(n, dtype=dtype), mode="drop", unique_indices=True)

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from raytrax.masks import all_true, any_true, count_true, true_indices
+from raytrax.masks import all_true, any_true, count_true, prefix_count, true_indices
 
 
 def test_any_true_and_all_true_equal_jnp_any_and_all():
@@ -48,3 +48,13 @@ def test_true_indices_equal_jnp_nonzero():
                 (want,) = jnp.nonzero(m, size=size, fill_value=fill)
                 assert got.dtype == want.dtype
                 np.testing.assert_array_equal(np.asarray(got), np.asarray(want), err_msg=f"{n} {size} {p} {fill}")
+
+
+def test_prefix_count_equals_cumsum():
+    rng = np.random.default_rng(3)
+    for n in (1, 7, 127, 128, 1000, 2048, 4096, 16384, 16447, 70000, 300000):
+        for p in (0.0, 0.2, 1.0):
+            m = rng.random(n) < p
+            got = jax.jit(prefix_count)(jnp.asarray(m))
+            assert got.dtype == jnp.int32
+            np.testing.assert_array_equal(np.asarray(got), np.cumsum(m), err_msg=f"{n} {p}")

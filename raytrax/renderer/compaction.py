@@ -23,6 +23,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ..masks import prefix_count
+
 
 def read(bufs, half, j, ns: int, live_cols, n: int):
     """Sub-tile ``j`` of half ``half`` of the queue ``bufs = (rays (2, r, B, Q), ids (2,
@@ -47,7 +49,7 @@ def pack(alive, width: int):
     (the live entries in order, then ``k``: none), ``dst (k,)``, the packed position
     of each entry (``width`` where not alive), and the number of live entries."""
     (k,) = alive.shape
-    rank = jnp.cumsum(alive, dtype=jnp.int32)  # its last entry is the count
+    rank = prefix_count(alive)  # its last entry is the count
     dst = jnp.where(alive, rank - 1, width)
     src = jnp.full((width,), k, jnp.int32).at[dst].set(jnp.arange(k, dtype=jnp.int32), mode="drop", unique_indices=True)
     return src, dst, rank[-1]
