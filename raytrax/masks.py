@@ -20,6 +20,21 @@ YNN_MIN = 4096
 it emits the reduction itself, as the 32-wide windows that compile slowly)."""
 
 
+def _default_int():
+    """jax's default integer dtype (int64 with x64 enabled, else int32), as ``jnp.sum``
+    of a boolean array and ``jnp.nonzero`` give."""
+    return jax.dtypes.canonicalize_dtype(jnp.int_)
+
+
+def _pad_for_ynn(x):
+    """A flat ``x`` of 33 to ``YNN_MIN - 1`` elements padded with zeros to
+    :data:`YNN_MIN` (so that XLA:CPU reduces it with YNNPACK); others unchanged."""
+    n = x.shape[0]
+    if 32 < n < YNN_MIN:
+        x = jnp.concatenate([x, jnp.zeros((YNN_MIN - n,), x.dtype)])
+    return x
+
+
 def any_true(x, axis=None) -> jax.Array:
     """``jnp.any(x, axis)``, compiled cheaply: XLA:CPU rewrites a boolean reduction
     of more than 32 elements into 32-wide windows of ``i1`` vectors (up to 195 KB of
@@ -29,9 +44,7 @@ def any_true(x, axis=None) -> jax.Array:
     is the bytes' maximum."""
     b = jnp.asarray(x).astype(jnp.uint8)
     if axis is None:
-        b = b.reshape(-1)
-        if 32 < b.shape[0] < YNN_MIN:
-            b = jnp.concatenate([b, jnp.zeros((YNN_MIN - b.shape[0],), jnp.uint8)])
+        b = _pad_for_ynn(b.reshape(-1))
     return jnp.max(b, axis=axis, initial=0) > 0
 
 
@@ -41,13 +54,10 @@ def count_true(x, dtype=None) -> jax.Array:
     2^24 elements), which XLA:CPU hands to YNNPACK from :data:`YNN_MIN` elements on,
     where an integer sum is emitted as 32-wide windows."""
     b = jnp.asarray(x).reshape(-1)
-    dtype = jnp.sum(jnp.zeros((1,), bool)).dtype if dtype is None else dtype
+    dtype = _default_int() if dtype is None else dtype
     if b.shape[0] >= 2**24 or b.shape[0] <= 32:
         return jnp.sum(b, dtype=dtype)
-    f = b.astype(jnp.float32)
-    if b.shape[0] < YNN_MIN:
-        f = jnp.concatenate([f, jnp.zeros((YNN_MIN - b.shape[0],), jnp.float32)])
-    return jnp.sum(f).astype(dtype)
+    return jnp.sum(_pad_for_ynn(b.astype(jnp.float32))).astype(dtype)
 
 
 def all_true(x, axis=None) -> jax.Array:
@@ -94,14 +104,24 @@ def prefix_count(mask) -> jax.Array:
     return _prefix_sum(mask.astype(jnp.float32)).astype(jnp.int32)
 
 
+def pack_map(mask, size: int, fill_value: int = 0, dtype=None):
+    """Where the true entries of a 1-D ``mask (k,)`` go when packed to the front of
+    ``size`` slots: ``src (size,)``, the index of the entry each slot receives (the true
+    entries in order, then ``fill_value``), ``dst (k,)``, the slot of each entry
+    (``size`` where false, ``size`` or more past the last slot), and the number of true entries
+    (``int32``). ``dtype``: of ``src`` (default: jax's default integer). One prefix
+    sum (:func:`prefix_count`) and one scatter."""
+    (k,) = mask.shape
+    dtype = _default_int() if dtype is None else dtype
+    rank = prefix_count(mask)  # its last entry is the count
+    dst = jnp.where(mask, rank - 1, size)  # past the end: dropped by the scatter
+    src = jnp.full((size,), fill_value, dtype).at[dst].set(jnp.arange(k, dtype=dtype), mode="drop", unique_indices=True)
+    return src, dst, rank[-1]
+
+
 def true_indices(mask, size: int, fill_value: int = 0, dtype=None) -> jax.Array:
     """``jnp.nonzero(mask, size=size, fill_value=fill_value)[0]`` for a 1-D ``mask``:
     the indices where it holds, in order, then ``fill_value`` (``dtype``: default
-    jax's default integer, as ``jnp.nonzero`` gives). One prefix sum and one scatter
+    jax's default integer, as ``jnp.nonzero`` gives). The ``src`` of :func:`pack_map`
     (``jnp.nonzero`` compiles about twice as long and runs no faster)."""
-    (n,) = mask.shape
-    dtype = jnp.sum(jnp.zeros((1,), bool)).dtype if dtype is None else dtype
-    rank = prefix_count(mask)
-    dst = jnp.where(mask, rank - 1, size)  # past the end: dropped
-    out = jnp.full((size,), fill_value, dtype)
-    return out.at[dst].set(jnp.arange(n, dtype=dtype), mode="drop", unique_indices=True)
+    return pack_map(mask, size, fill_value, dtype)[0]

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from raytrax.masks import all_true, any_true, count_true, prefix_count, true_indices
+from raytrax.masks import all_true, any_true, count_true, pack_map, prefix_count, true_indices
 
 
 def test_any_true_and_all_true_equal_jnp_any_and_all():
@@ -58,3 +58,19 @@ def test_prefix_count_equals_cumsum():
             got = jax.jit(prefix_count)(jnp.asarray(m))
             assert got.dtype == jnp.int32
             np.testing.assert_array_equal(np.asarray(got), np.cumsum(m), err_msg=f"{n} {p}")
+
+
+def test_pack_map_sends_each_true_entry_to_its_rank():
+    rng = np.random.default_rng(4)
+    for k, size in ((5, 5), (300, 200), (4096, 4096)):
+        m = rng.random(k) < 0.4
+        src, dst, c = pack_map(jnp.asarray(m), size, k, jnp.int32)
+        idx = np.nonzero(m)[0]
+        assert int(c) == len(idx) and c.dtype == jnp.int32 and src.dtype == jnp.int32
+        want_dst = np.full(k, size)
+        want_dst[idx] = np.arange(len(idx))
+        want_dst[want_dst >= size] = size  # entries past the last slot have none
+        np.testing.assert_array_equal(np.where(np.asarray(dst) >= size, size, np.asarray(dst)), want_dst)
+        want_src = np.full(size, k)
+        want_src[: min(size, len(idx))] = idx[:size]
+        np.testing.assert_array_equal(np.asarray(src), want_src)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ..masks import prefix_count
+from ..masks import pack_map
 
 
 def read(bufs, half, j, ns: int, live_cols, n: int):
@@ -47,12 +47,9 @@ def read(bufs, half, j, ns: int, live_cols, n: int):
 def pack(alive, width: int):
     """For ``alive (k,)``: ``src (width,)``, the source index of each packed position
     (the live entries in order, then ``k``: none), ``dst (k,)``, the packed position
-    of each entry (``width`` where not alive), and the number of live entries."""
-    (k,) = alive.shape
-    rank = prefix_count(alive)  # its last entry is the count
-    dst = jnp.where(alive, rank - 1, width)
-    src = jnp.full((width,), k, jnp.int32).at[dst].set(jnp.arange(k, dtype=jnp.int32), mode="drop", unique_indices=True)
-    return src, dst, rank[-1]
+    of each entry (``width`` where not alive), and the number of live entries
+    (:func:`raytrax.masks.pack_map`)."""
+    return pack_map(alive, width, alive.shape[0], jnp.int32)
 
 
 PACK_CHUNK = 1024
