@@ -123,7 +123,8 @@ from .term import (
     QUAD_NODES,
     QUAD_SAMPLES,
     EdgeOptions,
-    edge_term,
+    edge_image,
+    find_edges,
 )
 
 __all__ = [
@@ -141,8 +142,9 @@ __all__ = [
     "Prims",
     "Records",
     "build_prims",
-    "edge_term",
+    "edge_image",
     "edge_value",
+    "find_edges",
     "first_t",
     "id_offsets",
     "kind_ids",

@@ -93,11 +93,18 @@ def _pixel_of(x, width, height):
     return py * width + px
 
 
-def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
-    """The boundary term as an ``(height, width, 3)`` image whose *value* is zero and
-    whose derivative with respect to ``scene`` is the edge contribution; the
-    number of sample pairs with an edge between them; and the silhouette
-    quadrature's rays (step 6), or ``None`` in a scene without spheres.
+def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
+    """The edge crossings of the sample grid and what :func:`edge_image` needs to
+    turn them into the boundary term (steps 1-5 of :mod:`raytrax.edges`, none of
+    which is differentiated: ``scene`` is used without gradient); the number of
+    sample pairs with an edge between them; and the silhouette quadrature's rays
+    (step 6), or ``None`` in a scene without spheres. The crossings are a dict of
+    ``K = budget`` (rounded up to whole chunks) entries: ``events``
+    (:class:`~raytrax.edges.Events`), edge points ``xs (2, K)``, ``ok (K,)``, the
+    coefficients ``coef (K, 3)`` of ``g``, and the pixels ``pix (3, K)`` and length
+    fractions ``wts (3, K)`` of each crossing's piece. Kept apart from
+    :func:`edge_image` so that, called outside ``jax.jit``, the two compile as
+    separate programs (XLA:CPU's compile time grows faster than the program).
 
     ``radiance_at(xy (2, M), light (M,), need (M,)) -> (M, 3)``: radiance of camera
     rays through image positions ``xy`` (per ray, that light's contribution alone,
@@ -121,8 +128,7 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     h = 1.0 / n
     sg = jax.lax.stop_gradient(scene)
     kinds = prepare(sg)
-    P, off = build_prims(scene)
-    P_sg = jax.lax.stop_gradient(P)
+    P_sg, off = build_prims(sg)
     ns = off["ns"]
 
     def rec_at(x, devices=1):
@@ -616,31 +622,47 @@ def edge_term(scene, width, height, eo: EdgeOptions, radiance_at):
     df = jnp.where(res["jump_ok"][:, None], fm - fp, 0.0)
     coef = df * res["cbase"][:, None]
     coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
-    ev = Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"])
-    # The differentiable part: g at the (fixed) edge point, with the live scene (every
-    # chain level computed: no conditional in what reverse mode transposes).
-    g = res["sign"].astype(dt) * edge_value(scene, P, ns, ev, res["xs"], width, height, skip=False)
-    g = jnp.where(res["ok"], g, 0.0)  # pyright: ignore
-    term = coef * g[:, None]  # (K, 3)
-    img = jnp.zeros((height * width, 3), term.dtype)
-    for j in range(3):
-        img = img.at[res["pix"][j]].add(term * res["wts"][j][:, None])
-    quad = None
-    if "qx" in res:
-        live_q = jnp.any(res["qw"] != 0, 0)
-        order = jnp.argsort(~live_q, stable=True)
-        quad = jax.lax.stop_gradient(
-            {
-                "xy": jnp.moveaxis(res["qx"][:, :, order], 1, 2),  # (2, K, Q)
-                "w": res["qw"][:, order].T,  # (K, Q)
-                "pixel": res["pin"][order],
-            }
-        )
-    img = eqx.error_if(
-        img,
+    coef = eqx.error_if(
+        coef,
         count > budget,
         f"edge_gradients: more sample pairs straddle an edge than "
         f"edge_budget={budget}; pass a larger edge_budget to render",
     )
+    quad = None
+    if "qx" in res:
+        live_q = jnp.any(res["qw"] != 0, 0)
+        order = jnp.argsort(~live_q, stable=True)
+        quad = {
+            "xy": jnp.moveaxis(res["qx"][:, :, order], 1, 2),  # (2, K, Q)
+            "w": res["qw"][:, order].T,  # (K, Q)
+            "pixel": res["pin"][order],
+        }
+    found = {
+        "events": Events(res["typ"], level, chain, refr, res["p1"], res["p2"], k_ev, res["sign"]),
+        "xs": res["xs"],
+        "ok": res["ok"],
+        "coef": coef,
+        "pix": res["pix"],
+        "wts": res["wts"],
+    }
+    return jax.lax.stop_gradient(found), count, jax.lax.stop_gradient(quad)
+
+
+def edge_image(scene, width, height, found):
+    """The boundary term of the crossings ``found`` (:func:`find_edges`) as an
+    ``(height, width, 3)`` image whose *value* is zero and whose derivative with
+    respect to ``scene`` is the edge contribution: ``sum coef * g(x_s, theta)`` over
+    the crossings, split between the pixels their pieces cover."""
+    P, off = build_prims(scene)
+    dt = scene.dtype
+    ev = found["events"]
+    # g at the (fixed) edge point, with the live scene (every chain level computed:
+    # no conditional in what reverse mode transposes).
+    g = ev.sign.astype(dt) * edge_value(scene, P, off["ns"], ev, found["xs"], width, height, skip=False)
+    g = jnp.where(found["ok"], g, 0.0)  # pyright: ignore
+    term = found["coef"] * g[:, None]  # (K, 3)
+    img = jnp.zeros((height * width, 3), term.dtype)
+    for j in range(3):
+        img = img.at[found["pix"][j]].add(term * found["wts"][j][:, None])
     img = img - jax.lax.stop_gradient(img)
-    return img.reshape(height, width, 3), count, quad
+    return img.reshape(height, width, 3)

@@ -11,7 +11,7 @@ from ..compile_options import top_level
 from ..edges import EdgeOptions
 from ..memory import release_by_default
 from ..scene import Scene, Settings
-from .edge_mode import render_edges_jit
+from .edge_mode import render_edges
 from .options import RAYS_PER_TILE, RenderOptions
 from .tiles import render_image, render_image_jit
 
@@ -128,7 +128,7 @@ def render(
             )
         if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
             raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
-        img = render_edges_jit(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
+        img = render_edges(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
     else:
         # Outside any transformation, one jitted program; under one (a jax.grad, jax.vmap
         # or a user's jax.jit), the render and its JVP rule are jitted apart, so that

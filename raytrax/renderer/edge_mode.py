@@ -12,7 +12,7 @@ from ..branching import any_in_batch, run_or_zeros
 from ..camera import cone_spread
 from ..chunks import equal_chunks, map_chunks
 from ..compile_options import filter_jit
-from ..edges import edge_term
+from ..edges import edge_image, find_edges
 from ..intersect import prepare
 from ..scene import Scene
 from .options import RenderOptions
@@ -59,22 +59,26 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
     return map_positions(one, xy, opts.tile_rays // st.branches, sel, need, devices)
 
 
-def render_edges(scene: Scene, opts: RenderOptions, eo):
-    """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
-    term of :mod:`raytrax.edges` (zero in value) found on the same samples.
+def _find(scene: Scene, hard: RenderOptions, eo):
+    """:func:`raytrax.edges.find_edges` on the grid of ``scene`` (no gradient), its
+    jumps measured with the ``hard`` options' renders."""
+    st = hard.settings
+    return find_edges(
+        scene,
+        st.width,
+        st.height,
+        eo,
+        lambda xy, light, need: radiance_at(scene, hard, xy, eo.samples, light, need=need, devices=eo.devices),
+    )
 
-    The grid's samples and the silhouette quadrature's rays are traced in one
+
+def _grid(scene: Scene, opts: RenderOptions, eo, quad):
+    """The image from the ``n x n`` sample grid plus the silhouette quadrature's term
+    (zero in value; ``quad`` from :func:`raytrax.edges.find_edges`), traced in one
     differentiable pass (one compiled trace, sharded like the plain render)."""
     st = opts.settings
     n = eo.samples
     W, H = st.width, st.height
-    # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
-    # where the pattern changes beside the edge: the derivative the estimate converges
-    # to is that of the image as the samples grow, where the filter width goes to 0.
-    hard = dataclasses.replace(opts, settings=dataclasses.replace(st, filter_textures=False))
-    edge, _, quad = edge_term(
-        scene, W, H, eo, lambda xy, light, need: radiance_at(scene, hard, xy, n, light, need=need, devices=eo.devices)
-    )
     # Positions in pixels of the (W n, H n) sample grid, whose sample centres are
     # (j + 1/2, i + 1/2), exactly as a spp-1 render at that size places them. Image 0
     # is the grid's mean per pixel, image 1 the quadrature's term.
@@ -95,7 +99,30 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     spread = cone_spread(scene.camera, Gh)  # one grid sample's cone
     img, q = splat_positions(scene, grid, xy, needed, spread, pixel, weight, W * H)  # differentiable
     q = q - jax.lax.stop_gradient(q)  # the quadrature's term is zero in value
-    return (img + q).reshape(H, W, 3) + edge
+    return (img + q).reshape(H, W, 3)
 
 
-render_edges_jit = filter_jit(render_edges)
+def _edge_image(scene: Scene, opts: RenderOptions, found):
+    return edge_image(scene, opts.settings.width, opts.settings.height, found)
+
+
+_find_jit = filter_jit(_find)
+_grid_jit = filter_jit(_grid)
+_edge_image_jit = filter_jit(_edge_image)
+
+
+def render_edges(scene: Scene, opts: RenderOptions, eo):
+    """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
+    term of :mod:`raytrax.edges` (zero in value) found on the same samples.
+
+    Three jitted programs: finding the edges (no gradient), the grid's image and
+    the boundary term (both differentiable). Called outside ``jax.jit`` (a render,
+    or an eager ``jax.grad``), each compiles on its own, which costs less than
+    compiling them as one (XLA:CPU's compile time grows faster than the program);
+    inside a ``jax.jit`` they are one program."""
+    # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
+    # where the pattern changes beside the edge: the derivative the estimate converges
+    # to is that of the image as the samples grow, where the filter width goes to 0.
+    hard = dataclasses.replace(opts, settings=dataclasses.replace(opts.settings, filter_textures=False))
+    found, _, quad = _find_jit(jax.lax.stop_gradient(scene), hard, eo)
+    return _grid_jit(scene, opts, eo, quad) + _edge_image_jit(scene, opts, found)
