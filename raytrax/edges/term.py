@@ -210,7 +210,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     nc, C = equal_chunks(budget, CHUNK, eo.devices)
     K = nc * C
     per_pair = jnp.sum(act, 1, dtype=jnp.int32)
-    count = jnp.sum(per_pair)
+    count = count_true(act)
     # Events in pair-major order, compacted in two steps (the pairs with an event,
     # then their slots), so that no prefix sum runs over every pair's every slot.
     has = per_pair > 0

@@ -124,5 +124,8 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     # where the pattern changes beside the edge: the derivative the estimate converges
     # to is that of the image as the samples grow, where the filter width goes to 0.
     hard = dataclasses.replace(opts, settings=dataclasses.replace(opts.settings, filter_textures=False))
+    # Without gradient here too (find_edges stops it inside as well): under an eager
+    # jax.grad the finder then runs as it is, with no JVP of it traced, and its
+    # compiled program is the same whichever parameters are differentiated.
     found, _, quad = _find_jit(jax.lax.stop_gradient(scene), hard, eo)
     return _grid_jit(scene, opts, eo, quad) + _edge_image_jit(scene, opts, found)
