@@ -1,5 +1,6 @@
 """Golden test: renders of every scene file and plain and edge-mode gradients of the
-edge scenes, compared with the recorded reference ``tests/golden/golden.npz``.
+edge scenes (those tests/test_edges.py checks against finite differences), compared
+with the recorded reference ``tests/golden/golden.npz``.
 
 The reference was computed by this code base (``python tests/golden/make_golden.py``),
 in float64; restructuring the code must not move any value by more than
@@ -33,6 +34,7 @@ def test_render_matches_golden(name):
     _close(cases.render_case(name), REF[f"render/{name}"], f"render/{name}")
 
 
+@pytest.mark.xdist_group(cases.GROUP)  # its gradients are shared with tests/test_edges.py
 @pytest.mark.parametrize("edge", [False, True], ids=["plain", "edge"])
 @pytest.mark.parametrize("name", cases.EDGE_SCENES)
 def test_gradient_matches_golden(name, edge):

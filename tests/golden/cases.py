@@ -1,11 +1,17 @@
 """The golden cases: what ``make_golden.py`` records and ``test_golden.py`` recomputes.
 
-Every case is float64 and small (a few seconds of compilation each) so that the whole
-golden test stays cheap; the edge-mode gradients use the regular sample grid (no key).
+Every case is float64. The renders are small (a few seconds of compilation each). The
+gradients are those that ``tests/test_edges.py`` checks against finite differences (and
+``tests/test_edges_devices.py`` against a sharded render): the edge scenes at their
+files' own settings (regular sample grid, no key), the loss ``mean(smooth_weights *
+image)``, with respect to every named parameter. :func:`gradient_case` is cached, so
+that the test files that use it, run in one process (the suite puts them in one
+``xdist_group``, see ``tests/conftest.py``), compile and compute each gradient once.
 """
 
 from __future__ import annotations
 
+import functools
 import pathlib
 
 import jax
@@ -13,12 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import raytrax as rt
+from raytrax.testing import smooth_weights
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 SCENES = sorted(p.stem for p in (ROOT / "scenes").glob("*.toml"))
 RENDER_SIZE = dict(width=12, height=9, spp=4)
 EDGE_SCENES = ("edge_occluders", "edge_sphere")
-EDGE_SIZE = dict(width=8, height=6, spp=4)
+GROUP = "edge_cases"
+"""The ``xdist_group`` of the tests that share :func:`gradient_case`."""
 
 
 def _scene(name):
@@ -26,28 +34,33 @@ def _scene(name):
     return rt.load_scene(ROOT / "scenes" / f"{name}.toml").astype(jnp.float64)
 
 
-def _weights(shape):
-    """Fixed weights of the image sum (deterministic, no RNG)."""
-    h, w, _ = shape
-    y, x = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
-    base = 1.0 + 0.5 * np.sin(0.7 * x + 1.3 * y)
-    return jnp.asarray(np.stack([base, 0.8 * base[::-1], 1.2 - 0.4 * base], -1))
-
-
 def render_case(name):
     return np.asarray(rt.render(_scene(name), **RENDER_SIZE))
 
 
+@functools.cache
+def edge_scene(name):
+    """The edge scene ``name`` as its file sets it (size, spp, depth), parsed in float64."""
+    jax.config.update("jax_enable_x64", True)
+    return rt.load_scene(ROOT / "scenes" / f"{name}.toml", dtype=jnp.float64)
+
+
+def weighted_mean(scene, **render_kwargs):
+    """``mean(smooth_weights * render(scene))``: the loss of the gradient cases."""
+    st = scene.settings
+    return jnp.mean(jnp.asarray(smooth_weights(st.height, st.width)) * rt.render(scene, **render_kwargs))
+
+
+@functools.cache
 def gradient_case(name, edge):
-    scene = _scene(name)
-    params = rt.parameters(scene)
-    wgt = _weights((EDGE_SIZE["height"], EDGE_SIZE["width"], 3))
+    """``{parameter name: gradient}`` (NumPy) of :func:`weighted_mean` of the edge scene
+    ``name`` with respect to every named parameter, plain or (``edge``) edge mode."""
+    scene = edge_scene(name)
 
     def loss(p):
-        img = rt.render(rt.with_parameters(scene, p), edge_gradients=edge, **EDGE_SIZE)
-        return jnp.sum(wgt * img)
+        return weighted_mean(rt.with_parameters(scene, p), edge_gradients=edge)
 
-    g = jax.grad(loss)(params)
+    g = jax.grad(loss)(rt.parameters(scene))
     return {k: np.asarray(v) for k, v in g.items()}
 
 

@@ -1,7 +1,7 @@
 """Record the golden reference (``tests/golden/golden.npz``) that ``tests/test_golden.py``
 compares against: small float64 renders of every scene file in ``scenes/``, and plain and
-edge-mode gradients of a fixed weighted image sum with respect to every named parameter
-of the edge scenes.
+edge-mode gradients of a smooth-weighted image mean with respect to every named parameter
+of the edge scenes, at those files' own settings (``golden/cases.py``).
 
 Run it only when an image or a gradient is *meant* to change, and say why in the commit:
 
