@@ -12,7 +12,19 @@ if "xla_cpu_use_fusion_emitters" not in os.environ["XLA_FLAGS"]:
     os.environ["XLA_FLAGS"] += " --xla_cpu_use_fusion_emitters=false"
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_enable_x64", True)  # float64 available where a gradient test asks for it
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Each test file runs in one worker (``--dist loadgroup`` with the file as the
+    group, like ``--dist loadfile``), except that tests marked with the same
+    ``xdist_group`` share a worker across files: they reuse each other's compiled
+    programs and cached results (tests/golden/cases.py)."""
+    for item in items:
+        if next(item.iter_markers("xdist_group"), None) is None:
+            item.add_marker(pytest.mark.xdist_group(item.path.name))

@@ -19,17 +19,21 @@ tests check the boundary term of :mod:`raytrax.edges`:
 
 import functools
 import math
-import os
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from golden import cases
 from helpers import jittered_central_differences
 
 import raytrax as rt
 from raytrax import edges
 from raytrax.testing import smooth_weights
+
+# In one worker with the golden test's gradients, which the finite-difference checks
+# below reuse (tests/golden/cases.py).
+pytestmark = pytest.mark.xdist_group(cases.GROUP)
 
 # ---------------------------------------------------------------------------
 # Analytic: a fronto-parallel quad with constant radiance over a black background.
@@ -131,12 +135,11 @@ STEP = 0.015  # world units: edges move 0.05-0.1 pixel, 5-10 of the reference's 
 RTOL = 0.05
 
 
-@functools.cache
 def occluder_scene():
     """``scenes/edge_occluders.toml``: a checkered floor (filtered texture) under two lights,
     with a sphere, a box (lifted, rotated) and a tetrahedron casting shadows and silhouettes,
-    16 x 12, spp 256 (the benchmark loads the same file)."""
-    s = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_occluders.toml"), dtype=jnp.float64)
+    16 x 12, spp 256, float64 (the benchmark loads the same file)."""
+    s = cases.edge_scene("edge_occluders")
     assert (s.settings.width, s.settings.height, s.settings.spp) == (FW, FH, EDGE_SPP)
     return s
 
@@ -166,15 +169,27 @@ def _occ_loss(q, **kw):
             "object[2].max": p["object[2].max"] + q["box"],
         },
     )
-    return jnp.mean(jnp.asarray(smooth_weights(FH, FW)) * rt.render(s, **kw))
+    return cases.weighted_mean(s, **kw)
+
+
+def _occ_grad(edge):
+    """The gradient of :func:`_occ_loss` at :func:`_occ_params`, from the golden case's
+    gradient with respect to every parameter (``box`` moves the box's two corners)."""
+    g = cases.gradient_case("edge_occluders", edge)
+    return {
+        "light0": g["light[0].position"],
+        "light1": g["light[1].position"],
+        "center": g["object[1].center"],
+        "radius": g["object[1].radius"],
+        "box": g["object[2].min"] + g["object[2].max"],
+    }
 
 
 @functools.cache
 def _occ_table():
     """(name, component) -> (FD, edge, plain) for every parameter component."""
     q0 = _occ_params()
-    g_edge = jax.grad(lambda q: _occ_loss(q, edge_gradients=True))(q0)
-    g_plain = jax.grad(_occ_loss)(q0)
+    g_edge, g_plain = _occ_grad(True), _occ_grad(False)
     ref = jax.jit(lambda q: _occ_loss(q, spp=REF_SPP))
     out = {}
     for name, v in q0.items():
@@ -182,7 +197,7 @@ def _occ_table():
         for c in range(v.shape[0]):
             e = jnp.zeros_like(v).at[c].set(STEP).reshape(jnp.shape(q0[name]))
             fd = float((ref(q0 | {name: q0[name] + e}) - ref(q0 | {name: q0[name] - e})) / (2 * STEP))
-            out[name, c] = (fd, float(jnp.atleast_1d(g_edge[name])[c]), float(jnp.atleast_1d(g_plain[name])[c]))
+            out[name, c] = (fd, float(np.atleast_1d(g_edge[name])[c]), float(np.atleast_1d(g_plain[name])[c]))
     return out
 
 
@@ -286,20 +301,21 @@ def test_sphere_centre_and_radius_over_a_textured_wall():
     (x, 6 % of the gradient's norm, was -3.2 % with the asymptotic silhouette
     correction, which a terminator just inside the silhouette breaks); plain AD is
     off by 79 % or more in every component (-174, +79, +121, +134 %)."""
-    s0 = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "edge_sphere.toml"), dtype=jnp.float64)
+    s0 = cases.edge_scene("edge_sphere")
     h, w_ = s0.settings.height, s0.settings.width
     assert (w_, h, s0.settings.spp) == (8, 6, EDGE_SPP)
-    w = jnp.asarray(smooth_weights(h, w_))
     p0 = rt.parameters(s0)
     q0 = jnp.concatenate([p0["object[1].center"], p0["object[1].radius"][None]])
 
     def loss(q, **kw):
-        s = rt.with_parameters(s0, {"object[1].center": q[:3], "object[1].radius": q[3]})
-        return jnp.mean(w * rt.render(s, **kw))
+        return cases.weighted_mean(rt.with_parameters(s0, {"object[1].center": q[:3], "object[1].radius": q[3]}), **kw)
+
+    def grad(edge):  # from the golden case's gradient with respect to every parameter
+        g = cases.gradient_case("edge_sphere", edge)
+        return np.concatenate([g["object[1].center"], g["object[1].radius"][None]])
 
     ref, se = jittered_central_differences(loss, q0, SPHERE_STEP, 4096, SPHERE_KEYS)
-    g_edge = np.asarray(jax.grad(lambda q: loss(q, edge_gradients=True))(q0))
-    g_plain = np.asarray(jax.grad(loss)(q0))
+    g_edge, g_plain = grad(True), grad(False)
     text = (
         f"(centre x, y, z, radius)\nreference {ref} +- {se}\nedge {g_edge} ({(g_edge - ref) / np.abs(ref)})\n"
         f"plain {g_plain} ({(g_plain - ref) / np.abs(ref)})"
