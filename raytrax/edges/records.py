@@ -75,8 +75,17 @@ def occluders(scene, kinds, off, P: Prims, p, hit):
         ld = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), V.normalize(jnp.broadcast_to(-Lp, p.shape)), V.normalize(Lv))
         dist = jnp.where(isd, P.far + V.norm(p), V.norm(Lv))
         end = V.vsel(jnp.broadcast_to(isd, p.shape[1:]), p + dist[None] * ld, jnp.broadcast_to(Lp, p.shape))
-        f, _ = search(scene, kinds, off, p + eps[None] * ld, ld, dist - 2 * eps)
-        la, _ = search(scene, kinds, off, end, -ld, dist - 2 * eps)
+        # Both ends of the segment in one search (one compiled search, not two).
+        tmax = dist - 2 * eps
+        both, _ = search(
+            scene,
+            kinds,
+            off,
+            jnp.concatenate([p + eps[None] * ld, end], 1),
+            jnp.concatenate([ld, -ld], 1),
+            jnp.concatenate([tmax, tmax]),
+        )
+        f, la = both[: p.shape[1]], both[p.shape[1] :]
         return jnp.where(hit, f, -1), jnp.where(hit, la, -1)
 
     return jax.lax.map(one, (P.light.T, P.ldir))
