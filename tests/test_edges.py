@@ -58,9 +58,9 @@ def quad_scene():
     return b.build(jnp.float64)
 
 
-# One edge budget for the spp-9 programs, so that the budget test runs the program that
-# test_sliding_quad_matches_analytic_derivative[9] compiled (the budget is static: another
-# value is another compilation). At spp 9 (a 48 x 36 sample grid) the quad has 70 sample
+# One edge budget for the spp-9 programs, so that the budget test and the unchanged-image
+# test run the edge finder that test_sliding_quad_matches_analytic_derivative[9] compiled
+# (the budget is static: another value is another compilation). At spp 9 (a 48 x 36 sample grid) the quad has 70 sample
 # pairs with an edge between them, DIAMOND 156.
 QUAD_BUDGET = 100
 DIAMOND = ((0.0, -5.7, 0.0), (7.7, 0.0, 0.0), (0.0, 5.7, 0.0), (-7.7, 0.0, 0.0))  # corners in the image
@@ -98,7 +98,9 @@ def test_sliding_quad_matches_analytic_derivative(spp):
 def test_edge_mode_leaves_the_image_unchanged():
     s = quad_scene()
     a = np.asarray(rt.render(s, spp=9))
-    b = np.asarray(rt.render(s, spp=9, edge_gradients=True))  # the same 3 x 3 grid per pixel
+    # The same 3 x 3 grid per pixel; the spp-9 budget: the edge finder of
+    # test_sliding_quad_matches_analytic_derivative[9], compiled once.
+    b = np.asarray(rt.render(s, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))
     np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
 
 
