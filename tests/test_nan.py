@@ -41,10 +41,13 @@ def _fns(which):
     def img(q):
         return rt.render(rt.with_parameters(s, q))
 
-    def loss(q):
-        return jnp.mean(img(q) * w)
+    def image_and_grad(q):
+        """The image and the gradient of ``mean(image * w)``: one forward pass (the
+        image comes with the gradient's, no forward-only program is compiled)."""
+        im, vjp = jax.vjp(img, q)
+        return im, vjp(w / w.size)[0]
 
-    return s, rt.parameters(s), img, loss, jax.grad(loss)
+    return s, rt.parameters(s), image_and_grad
 
 
 def scene(which):
@@ -64,12 +67,11 @@ def full(which, overrides):
 
 def check_finite(which, overrides):
     """Render and differentiate; fail with the offending pixels / parameter names."""
-    s, p, img, loss, grad = _fns(which)
     q = full(which, overrides)
-    im = np.asarray(img(q))
+    im, g = _fns(which)[2](q)
+    im = np.asarray(im)
     bad_px = np.argwhere(~np.isfinite(im).all(-1))
     assert bad_px.size == 0, f"{which} {overrides}: non-finite pixels (row, col) {bad_px.tolist()[:10]}"
-    g = grad(q)
     bad_g = [k for k, v in g.items() if not np.all(np.isfinite(np.asarray(v)))]
     assert not bad_g, f"{which} {overrides}: non-finite gradient of {bad_g}"
     return im, g
