@@ -60,8 +60,8 @@ def quad_scene():
 
 # One edge budget for the spp-9 programs, so that the budget test and the unchanged-image
 # test run the edge finder that test_sliding_quad_matches_analytic_derivative[9] compiled
-# (the budget is static: another value is another compilation). At spp 9 (a 48 x 36 sample grid) the quad has 70 sample
-# pairs with an edge between them, DIAMOND 156.
+# (the budget is static: another value is another compilation). At spp 9 (a 48 x 36
+# sample grid) the quad has 70 sample pairs with an edge between them, DIAMOND 156.
 QUAD_BUDGET = 100
 DIAMOND = ((0.0, -5.7, 0.0), (7.7, 0.0, 0.0), (0.0, 5.7, 0.0), (-7.7, 0.0, 0.0))  # corners in the image
 
