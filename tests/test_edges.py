@@ -146,45 +146,34 @@ def occluder_scene():
     return s
 
 
+# The checked parameters: short name -> scene parameter, and "box", an offset that moves
+# both of the box's corners (its derivative is the sum of theirs).
+OCC_NAMES = {
+    "light0": "light[0].position",
+    "light1": "light[1].position",
+    "center": "object[1].center",
+    "radius": "object[1].radius",
+}
+BOX_CORNERS = ("object[2].min", "object[2].max")
+
+
 def _occ_params():
     p = rt.parameters(occluder_scene())
-    return {
-        "light0": p["light[0].position"],
-        "light1": p["light[1].position"],
-        "center": p["object[1].center"],
-        "radius": p["object[1].radius"],
-        "box": jnp.zeros(3, jnp.float64),
-    }
+    return {k: p[v] for k, v in OCC_NAMES.items()} | {"box": jnp.zeros(3, jnp.float64)}
 
 
 def _occ_loss(q, **kw):
     s = occluder_scene()
     p = rt.parameters(s)
-    s = rt.with_parameters(
-        s,
-        {
-            "light[0].position": q["light0"],
-            "light[1].position": q["light1"],
-            "object[1].center": q["center"],
-            "object[1].radius": q["radius"],
-            "object[2].min": p["object[2].min"] + q["box"],
-            "object[2].max": p["object[2].max"] + q["box"],
-        },
-    )
-    return cases.weighted_mean(s, **kw)
+    moved = {v: q[k] for k, v in OCC_NAMES.items()} | {c: p[c] + q["box"] for c in BOX_CORNERS}
+    return cases.weighted_mean(rt.with_parameters(s, moved), **kw)
 
 
 def _occ_grad(edge):
     """The gradient of :func:`_occ_loss` at :func:`_occ_params`, from the golden case's
-    gradient with respect to every parameter (``box`` moves the box's two corners)."""
+    gradient with respect to every parameter."""
     g = cases.gradient_case("edge_occluders", edge)
-    return {
-        "light0": g["light[0].position"],
-        "light1": g["light[1].position"],
-        "center": g["object[1].center"],
-        "radius": g["object[1].radius"],
-        "box": g["object[2].min"] + g["object[2].max"],
-    }
+    return {k: g[v] for k, v in OCC_NAMES.items()} | {"box": sum(g[c] for c in BOX_CORNERS)}
 
 
 @functools.cache
