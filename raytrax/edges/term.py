@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import vec as V
-from ..branching import run_or_zeros
+from ..branching import any_in_batch, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from ..masks import any_true, count_true, true_indices
@@ -27,6 +27,7 @@ NEWTON_STEPS = 3  # following an edge to the neighbouring row
 CHUNK = 512  # events solved per step of the (skippable) chunk loop
 QUAD_SAMPLES = 2  # inside samples of a sphere's silhouette row replaced by a quadrature
 QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
+IMAGE_CHUNK = 1024  # crossings per chunk of the boundary term (:func:`edge_image`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -652,17 +653,32 @@ def edge_image(scene, width, height, found):
     """The boundary term of the crossings ``found`` (:func:`find_edges`) as an
     ``(height, width, 3)`` image whose *value* is zero and whose derivative with
     respect to ``scene`` is the edge contribution: ``sum coef * g(x_s, theta)`` over
-    the crossings, split between the pixels their pieces cover."""
+    the crossings, split between the pixels their pieces cover.
+
+    The crossings are evaluated in chunks of at most :data:`IMAGE_CHUNK`; a chunk
+    without a crossing that adds anything is skipped (the live crossings are packed
+    at the front, so the cost follows the edges present, not the budget)."""
     P, off = build_prims(scene)
     dt = scene.dtype
-    ev = found["events"]
-    # g at the (fixed) edge point, with the live scene (every chain level computed:
-    # no conditional in what reverse mode transposes).
-    g = ev.sign.astype(dt) * edge_value(scene, P, off["ns"], ev, found["xs"], width, height, skip=False)
-    g = jnp.where(found["ok"], g, 0.0)  # pyright: ignore
-    term = found["coef"] * g[:, None]  # (K, 3)
-    img = jnp.zeros((height * width, 3), term.dtype)
+    K = found["ok"].shape[0]
+    nc, C = equal_chunks(K, IMAGE_CHUNK)
+
+    def term(c):
+        # g at the (fixed) edge point, with the live scene (every chain level computed:
+        # no conditional in what reverse mode transposes).
+        ev = c["events"]
+        g = ev.sign.astype(dt) * edge_value(scene, P, off["ns"], ev, c["xs"], width, height, skip=False)
+        g = jnp.where(c["ok"], g, 0.0)  # pyright: ignore
+        return c["coef"] * g[None]  # (3, C)
+
+    def chunk(c):
+        # The checkpoint inside the cond: a skipped chunk stores and recomputes nothing.
+        return run_or_zeros(any_in_batch(c["ok"]), jax.checkpoint(term), c)
+
+    args = {"events": found["events"], "xs": found["xs"], "ok": found["ok"], "coef": found["coef"].T}
+    terms = map_chunks(chunk, args, K, nc, C).T  # (K, 3)
+    img = jnp.zeros((height * width, 3), terms.dtype)
     for j in range(3):
-        img = img.at[found["pix"][j]].add(term * found["wts"][j][:, None])
+        img = img.at[found["pix"][j]].add(terms * found["wts"][j][:, None])
     img = img - jax.lax.stop_gradient(img)
     return img.reshape(height, width, 3)

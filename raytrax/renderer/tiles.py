@@ -89,11 +89,14 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         scene, spread = scene_spread
         kinds = prepare(scene)
 
-        def radiance(x, on):
+        def radiance(x, on, remat=True):
             def go(x):
                 return trace(scene, kinds, x, spread, opts).T
 
-            return jax.lax.cond(on, go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
+            # The checkpoint inside the cond: a skipped tile then stores and
+            # recomputes nothing (around it, reverse mode would write the zero
+            # residuals of a whole trace for every skipped tile).
+            return jax.lax.cond(on, jax.checkpoint(go) if remat else go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
 
         def tile(acc, args, radiance):
             x, on, p, w = args
@@ -102,9 +105,9 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
 
         acc0 = jnp.zeros((k, n_pixels, 3), scene.dtype) + tangent_seed(scene, scene.dtype)
         if xs[0].shape[0] == 1:  # one tile (per device): no loop, and nothing to recompute in reverse mode
-            acc, _ = tile(acc0, jax.tree.map(lambda x: x[0], xs), radiance)
+            acc, _ = tile(acc0, jax.tree.map(lambda x: x[0], xs), lambda x, on: radiance(x, on, remat=False))
         else:
-            acc, _ = jax.lax.scan(lambda a, x: tile(a, x, jax.checkpoint(radiance)), acc0, xs)
+            acc, _ = jax.lax.scan(lambda a, x: tile(a, x, radiance), acc0, xs)
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
