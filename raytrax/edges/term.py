@@ -28,7 +28,6 @@ CHUNK = 512  # events solved per step of the (skippable) chunk loop
 QUAD_SAMPLES = 2  # inside samples of a sphere's silhouette row replaced by a quadrature
 QUAD_NODES = 6  # its Gauss-Legendre nodes in sqrt(distance)
 IMAGE_CHUNK = 1024  # crossings per chunk of the boundary term (:func:`edge_image`)
-SIDE_DIV = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -394,7 +393,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             "k": dup(c["k"]),
             "vis": dup(vis),
         }
-        m = max(1, E // SIDE_DIV)
+        m = max(1, E // 2)
         okd = dup(ok)
         nfull = -(-(2 * E) // m)
 
