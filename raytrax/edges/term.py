@@ -16,7 +16,7 @@ from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
-from ..masks import any_true, count_true, pack_map, true_indices
+from ..masks import any_true, count_true, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
 from .records import object_key, pack_records, packed_rows, records, unpack_records
@@ -631,12 +631,11 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     )
     quad = None
     if "qx" in res:
-        # The crossings with a quadrature packed at the front (the rest repeat the
-        # first, with weight 0): one prefix sum, where a sort costs ten times more.
-        order, _, n_q = pack_map(any_true(res["qw"] != 0, 0), K, dtype=jnp.int32)
+        live_q = jnp.any(res["qw"] != 0, 0)
+        order = jnp.argsort(~live_q, stable=True)
         quad = {
             "xy": jnp.moveaxis(res["qx"][:, :, order], 1, 2),  # (2, K, Q)
-            "w": jnp.where((jnp.arange(K) < n_q)[:, None], res["qw"][:, order].T, 0.0),  # (K, Q)
+            "w": res["qw"][:, order].T,  # (K, Q)
             "pixel": res["pin"][order],
         }
     found = {
