@@ -32,12 +32,15 @@ def _any_in_batch_vmap(axis_size, in_batched, x):
     return any_true(x), False
 
 
-def run_or_zeros(pred, fn, *args):
+def run_or_zeros(pred, fn, *args, remat: bool = False):
     """``fn(*args)`` where the scalar bool ``pred`` holds, else zeros shaped like its
     outputs (a ``lax.cond``). ``fn`` is traced once: the zeros' shapes come from the
     trace that the branch reuses (``jax.eval_shape`` of ``fn`` and a ``lax.cond`` on
-    ``fn`` would trace it twice, seconds for a whole tracer)."""
-    f = jax.jit(fn)
+    ``fn`` would trace it twice, seconds for a whole tracer). ``remat``: ``fn`` under
+    ``jax.checkpoint`` inside the branch, so that reverse mode stores only its inputs and
+    a skipped call stores and recomputes nothing (a checkpoint around the cond would
+    write zero residuals of all of ``fn`` for every skipped call)."""
+    f = jax.jit(jax.checkpoint(fn) if remat else fn)
     shapes = jax.eval_shape(f, *args)
     return jax.lax.cond(
         pred, f, lambda *_: jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), *args

@@ -672,8 +672,7 @@ def edge_image(scene, width, height, found):
         return c["coef"] * g[None]  # (3, C)
 
     def chunk(c):
-        # The checkpoint inside the cond: a skipped chunk stores and recomputes nothing.
-        return run_or_zeros(any_in_batch(c["ok"]), jax.checkpoint(term), c)
+        return run_or_zeros(any_in_batch(c["ok"]), term, c, remat=True)
 
     args = {"events": found["events"], "xs": found["xs"], "ok": found["ok"], "coef": found["coef"].T}
     terms = map_chunks(chunk, args, K, nc, C).T  # (K, 3)

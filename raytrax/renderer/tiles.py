@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
+from ..branching import run_or_zeros
 from ..camera import cone_spread, sample_positions
 from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin, split
 from ..compile_options import filter_jit
@@ -89,25 +90,24 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         scene, spread = scene_spread
         kinds = prepare(scene)
 
-        def radiance(x, on, remat=True):
+        several = xs[0].shape[0] > 1  # one tile (per device): no loop, and nothing to recompute in reverse mode
+
+        def radiance(x, on):
             def go(x):
                 return trace(scene, kinds, x, spread, opts).T
 
-            # The checkpoint inside the cond: a skipped tile then stores and
-            # recomputes nothing (around it, reverse mode would write the zero
-            # residuals of a whole trace for every skipped tile).
-            return jax.lax.cond(on, jax.checkpoint(go) if remat else go, lambda x: jnp.zeros((c, 3), scene.dtype), x)
+            return run_or_zeros(on, go, x, remat=several)
 
-        def tile(acc, args, radiance):
+        def tile(acc, args):
             x, on, p, w = args
             f = radiance(x, on)  # (c, 3)
             return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
 
         acc0 = jnp.zeros((k, n_pixels, 3), scene.dtype) + tangent_seed(scene, scene.dtype)
-        if xs[0].shape[0] == 1:  # one tile (per device): no loop, and nothing to recompute in reverse mode
-            acc, _ = tile(acc0, jax.tree.map(lambda x: x[0], xs), lambda x, on: radiance(x, on, remat=False))
+        if several:
+            acc, _ = jax.lax.scan(tile, acc0, xs)
         else:
-            acc, _ = jax.lax.scan(lambda a, x: tile(a, x, radiance), acc0, xs)
+            acc, _ = tile(acc0, jax.tree.map(lambda x: x[0], xs))
         return jax.lax.psum(acc, AXIS) if n_dev > 1 else acc
 
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
