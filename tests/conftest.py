@@ -7,7 +7,8 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
 # The tests' own jax.jit calls compile with the options raytrax's entry points use
-# (raytrax.compile_options: the CPU loop emitters that compile about twice as fast).
+# (raytrax.compile_options: the CPU loop emitters that compile about twice as fast; the
+# vector width, where the CPU has AVX-512, is added by `import raytrax` in the tests).
 if "xla_cpu_use_fusion_emitters" not in os.environ["XLA_FLAGS"]:
     os.environ["XLA_FLAGS"] += " --xla_cpu_use_fusion_emitters=false"
 

@@ -28,6 +28,19 @@ def test_import_sets_the_flag_only_when_free_to():
     assert "use_fusion_emitters=true" in python_output(_FLAGS, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
 
 
+def test_512_bit_vectors_exactly_where_the_cpu_has_avx512():
+    want = {"xla_cpu_use_fusion_emitters": False} | (
+        {"xla_cpu_prefer_vector_width": 512} if co.cpu_has_avx512() else {}
+    )
+    assert co.CPU_OPTIONS == want
+    flags = python_output(_FLAGS, XLA_FLAGS="--xla_cpu_prefer_vector_width=256")
+    assert "--xla_cpu_prefer_vector_width=256" in flags and "=512" not in flags  # the user's choice stays
+    if co.jaxlib_checked():
+        assert ("--xla_cpu_prefer_vector_width=512" in python_output(_FLAGS)) == co.cpu_has_avx512()
+        assert "--xla_cpu_use_fusion_emitters=false" in flags  # the other option is still added
+    assert co.flag("a", False) == "--a=false" and co.flag("b", 512) == "--b=512"
+
+
 def test_a_render_inside_a_users_jit_equals_the_top_level_render():
     # rt.render passes its options only as a top-level jit (jax refuses them on a nested
     # one); inside jax.jit with or without the options it renders the same image.
