@@ -7,9 +7,10 @@ against 9.4-9.5 s; a first eager ``jax.grad``: 18.9 s against 11.4 s), and the
 compiled renders run as fast either way (``benchmarks/bench_speed.py``).
 
 On a CPU with AVX-512, XLA is also asked for 512-bit vectors (its default prefers
-256): the forward render (640 x 480, spp 4, depth 6) runs in 0.127-0.131 s against
-0.141-0.143 s and its ``value_and_grad`` (320 x 240) in 0.24-0.26 s against
-0.28-0.29 s (fastest of seven calls, alternating processes, a 2-core AMD EPYC).
+256): the forward render (640 x 480, spp 4, depth 6) runs in 0.126-0.131 s against
+0.134-0.143 s and its ``value_and_grad`` (320 x 240) in 0.238-0.256 s against
+0.246-0.294 s (fastest of seven calls; five pairs of processes, alternating; a
+2-core AMD EPYC).
 Images differ from 256-bit code by float rounding only (float32: at most 2e-4,
 in 2 % of the pixels of that scene; the float64 golden tests agree to 1e-12).
 
