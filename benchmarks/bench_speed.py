@@ -364,10 +364,10 @@ def cpu_description() -> str:
     """The CPU's model and its widest x86 vector instructions, from Linux's
     ``/proc/cpuinfo`` (elsewhere the platform's name): Mitsuba's LLVM kernels use the
     widest vectors the CPU has, so the ratios move with them between machines."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            lines = f.read().splitlines()
-    except OSError:
+    from raytrax.compile_options import first_cpu_lines
+
+    lines = first_cpu_lines()
+    if not lines:
         return platform.processor() or platform.machine()
     model = next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), platform.machine())
     flags = set(next((ln.split(":", 1)[1].split() for ln in lines if ln.startswith("flags")), []))

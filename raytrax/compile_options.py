@@ -35,17 +35,25 @@ import sys
 from typing import Any
 
 
-def cpu_has_avx512() -> bool:
-    """Whether this machine's CPU has AVX-512 (the ``avx512f`` flag of Linux's
-    ``/proc/cpuinfo``; ``False`` where that cannot be read)."""
+def first_cpu_lines() -> list[str]:
+    """The lines (newlines kept) of the first processor's entry in Linux's
+    ``/proc/cpuinfo``; empty where that cannot be read."""
+    lines = []
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
-                if line.startswith("flags"):
-                    return "avx512f" in line.split()
+                if not line.strip():
+                    break  # the first processor is enough
+                lines.append(line)
     except OSError:
         pass
-    return False
+    return lines
+
+
+def cpu_has_avx512() -> bool:
+    """Whether this machine's CPU has AVX-512 (the ``avx512f`` flag of
+    :func:`first_cpu_lines`; ``False`` where they cannot be read)."""
+    return any(ln.startswith("flags") and "avx512f" in ln.split() for ln in first_cpu_lines())
 
 
 def _cpu_options() -> dict[str, Any]:

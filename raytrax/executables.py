@@ -76,17 +76,10 @@ def host_digest() -> str:
     for them), as text."""
     import platform
 
-    text = platform.machine() + platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith(("flags", "model name", "Features", "CPU part")):
-                    text += line
-                elif not line.strip():
-                    break  # the first processor is enough
-    except OSError:
-        pass
-    return text
+    from .compile_options import first_cpu_lines
+
+    keep = ("flags", "model name", "Features", "CPU part")
+    return platform.machine() + platform.processor() + "".join(ln for ln in first_cpu_lines() if ln.startswith(keep))
 
 
 def executable_key(scene) -> str | None:
