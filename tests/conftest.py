@@ -29,3 +29,22 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if next(item.iter_markers("xdist_group"), None) is None:
             item.add_marker(pytest.mark.xdist_group(item.path.name))
+
+
+_CACHE_OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
+
+
+@pytest.fixture(autouse=True)
+def _compilation_cache_left_as_it_was():
+    """A test that turns on jax's persistent compilation cache in this process (the
+    CLI's in-process ``main(["render", ...])`` does, in the user's own cache folder)
+    must not leave it on for the tests after it: they would read and write programs
+    in ``~/.cache`` and their times would depend on earlier runs."""
+    before = {name: jax.config.values.get(name) for name in _CACHE_OPTIONS}
+    yield
+    if any(jax.config.values.get(name) != value for name, value in before.items()):
+        from jax._src import compilation_cache
+
+        for name, value in before.items():
+            jax.config.update(name, value)
+        compilation_cache.reset_cache()

@@ -39,6 +39,19 @@ def env(tmp_path_factory):
     return e
 
 
+@pytest.fixture(scope="module")
+def _main_cache(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("jax-cache-main"))
+
+
+@pytest.fixture(autouse=True)
+def _main_cache_in_the_session(_main_cache, monkeypatch):
+    """``cli.main(["render", ...])`` in this process turns on jax's persistent cache
+    (conftest.py turns it off again after each test): in a folder of the test
+    session's, not in the user's ``~/.cache``."""
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", _main_cache)
+
+
 def interruptible(module, args, **kw):
     """``python -m module args`` in a subprocess, with SIGINT at its default: a test
     run started as a background job ignores SIGINT, and so would the CLI then (it
