@@ -234,6 +234,8 @@ def _cmd_render(args) -> int:
     from . import executables
     from .imageio import save_image
 
+    # Only once the arguments and the scene are good: a user error leaves no cache folder.
+    executables.enable_compilation_cache()
     with _Phase("compiling", q) as ph_c:
         compiled, leaves, cached = executables.compiled_render(scene)
     with _Phase("rendering", q) as ph_r:
@@ -589,9 +591,6 @@ def _main(argv):
     try:
         args = parser.parse_args(argv)
         if args.command == "render":
-            from .executables import enable_compilation_cache
-
-            enable_compilation_cache()
             return _cmd_render(args)
         if args.command == "schema":
             return _cmd_schema()

@@ -303,6 +303,22 @@ def main_err(capsys, argv):
     return code, cap.out, cap.err
 
 
+def test_a_user_error_turns_on_no_compilation_cache(tmp_path, monkeypatch, capsys):
+    # jax's persistent cache is turned on once the arguments and the scene are good: a
+    # bad option or scene leaves no cache folder and jax's options as they were.
+    import jax
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(cache))
+    before = jax.config.values.get("jax_compilation_cache_dir")
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[material.m]\n[[object]]\ntype = "sphere"\nmaterial = "m"\ncenter = [0, 0, -5]\nradius = -1\n')
+    for argv in (["render", "--width", "0"], ["render", str(tmp_path / "missing.toml")], ["render", str(bad)]):
+        code, out, err = main_err(capsys, argv)
+        assert code == 2 and out == "" and err.startswith("raytrax: error: "), (argv, code, err)
+        assert not cache.exists() and jax.config.values.get("jax_compilation_cache_dir") == before, argv
+
+
 @pytest.mark.parametrize(
     "argv,message",
     [
