@@ -3,8 +3,8 @@
 One batch varies every kind of parameter at once (an IOR, a colour, a radius,
 the camera position and a light position), so one vmapped compilation and one
 single-render compilation cover them all (such a batch is rendered as a
-sequence of single renders; a batch over lights only, batched inside the
-render, is tests/test_devices.py::test_vmap_over_light_positions). The images
+sequence of single renders; a batch over colours is batched inside the render,
+below, and over lights in tests/test_devices.py::test_vmap_over_light_positions). The images
 must be the loop's to float32 rounding, and gradients through a batch each
 member's own.
 """
@@ -82,3 +82,39 @@ def test_gradient_of_a_vmapped_render_matches_a_loop_of_gradients():
     batched = np.asarray(jax.jit(jax.grad(lambda rs: jnp.sum(jax.vmap(mean_image)(rs))))(radii))
     assert np.all(np.isfinite(batched)) and np.all(np.abs(loop) > 1e-3)
     np.testing.assert_allclose(batched, loop, rtol=1e-4, atol=1e-7)
+
+
+def test_a_batch_over_colours_is_batched_inside_and_matches_a_loop():
+    """A batch over what only colours a hit's own light (a material's colour, the
+    background, lights) is batched inside the render: every ray is the batch's; the
+    material fields that decide the children are read apart from the colours, so
+    that they stay unbatched. Anything that moves a ray (an IOR, a reflectivity, a
+    radius, the camera) is rendered as a sequence."""
+    from raytrax.renderer.tiles import _only_shading_batched
+
+    none = jax.tree.map(lambda _: False, BASE)
+
+    def flags(where):
+        return eqx.tree_at(where, none, replace_fn=lambda n: jax.tree.map(lambda _: True, n)), False
+
+    inside = [lambda s: s.materials.color, lambda s: s.environment.background, lambda s: s.light_sets]
+    outside = [
+        lambda s: s.materials.ior,
+        lambda s: s.materials.reflectivity,
+        lambda s: s.materials.transparency,
+        lambda s: s.spheres.radius,
+        lambda s: s.camera.position,
+    ]
+    assert [_only_shading_batched(flags(w)) for w in inside] == [True] * 3
+    assert [_only_shading_batched(flags(w)) for w in outside] == [False] * 5
+
+    def with_colour(c, bg):
+        s = eqx.tree_at(lambda s: s.materials.color, BASE, BASE.materials.color.at[1].set(c))
+        return eqx.tree_at(lambda s: s.environment.background, s, bg)
+
+    bgs = jnp.array([[0.05, 0.05, 0.1], [0.3, 0.1, 0.0], [0.0, 0.2, 0.2]], jnp.float32)
+    render = jax.jit(lambda c, bg: rt.render(with_colour(c, bg)))
+    loop = np.stack([np.asarray(render(BATCH["red"][i], bgs[i])) for i in range(3)])
+    batched = np.asarray(jax.jit(jax.vmap(lambda c, bg: rt.render(with_colour(c, bg))))(BATCH["red"], bgs))
+    assert np.abs(loop[0] - loop[1]).max() > 0.05 and np.abs(loop[0] - loop[2]).max() > 0.05
+    np.testing.assert_allclose(batched, loop, rtol=0, atol=2e-5)

@@ -99,8 +99,10 @@ def render(
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``. Under
-    ``jax.vmap`` a batch over light parameters only is batched inside the render
-    (the camera rays and their hits are shared); a batch over anything else is
+    ``jax.vmap`` a batch over what only colours a hit's light (light parameters,
+    material colours and Phong terms, texture colours, background and ambient) is
+    batched inside the render (every ray and hit is shared: a quarter to a third
+    of a loop's cost per image); a batch over anything that moves rays is
     rendered as a ``lax.map`` of single renders, at a loop's cost per image (see
     ``docs/scaling.md``).
     """

@@ -21,6 +21,10 @@ class RenderOptions:
     - ``subtile``: rays per sub-tile of the ray queue (the unit of skipping dead rays).
     - ``jitter``: samples are jittered inside their strata (a PRNG key was given).
     - ``devices``: number of devices the tiles are sharded over.
+    - ``split_material_read``: read the material fields that decide a hit's children
+      (transparency, reflectivity, ior) apart from those that only colour its own light,
+      so that a ``jax.vmap`` over colours leaves every ray unbatched (one read is faster
+      where nothing is batched).
     """
 
     settings: Settings
@@ -28,3 +32,4 @@ class RenderOptions:
     subtile: int = SUBTILE
     jitter: bool = False
     devices: int = 1
+    split_material_read: bool = False

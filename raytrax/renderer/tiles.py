@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -113,9 +114,22 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
 
 
-def _only_lights_batched(in_batched) -> bool:
+#: Material fields that only colour a hit's own light (never a ray's direction or
+#: throughput, so never which rays are traced): a batch over them, the lights and the
+#: environment is batched inside the render.
+SHADING_ONLY_MATERIAL_FIELDS = ("color", "ambient", "diffuse", "specular", "shininess", "tex_color2", "images")
+
+
+def _only_shading_batched(in_batched) -> bool:
+    """Whether the batched leaves (``in_batched``: flags of ``(scene, key)``) are all
+    lights, the environment or :data:`SHADING_ONLY_MATERIAL_FIELDS`: then every ray,
+    hit and branch is the same for the whole batch and only the radiance differs."""
     scene_b, key_b = in_batched
-    rest = eqx.tree_at(lambda s: s.light_sets, scene_b, {})
+    rest = eqx.tree_at(
+        lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in SHADING_ONLY_MATERIAL_FIELDS)),
+        scene_b,
+        replace_fn=lambda node: jax.tree.map(lambda _: False, node),
+    )
     return not any(jax.tree.leaves((rest, key_b)))
 
 
@@ -135,9 +149,10 @@ def _jvp_of_live(opts: RenderOptions, tdef, on, live_p, live_t, dead):
 def render_image(scene: Scene, opts: RenderOptions, key):
     """The ``(H, W, 3)`` image of ``scene`` (the tiles of :func:`map_tiles`).
 
-    Under ``jax.vmap`` a batch whose only batched leaves are light parameters
-    is batched inside (camera rays and their hits are shared by the batch);
-    any other batch is rendered as a ``lax.map`` of single renders, which costs
+    Under ``jax.vmap`` a batch whose only batched leaves colour what a hit
+    sends to the camera (lights, the environment,
+    :data:`SHADING_ONLY_MATERIAL_FIELDS`) is batched inside (every ray, hit and
+    branch is shared by the batch); any other batch is rendered as a ``lax.map`` of single renders, which costs
     per image what a loop of renders costs, where batching every ray costs
     about twice as much (the dead-ray skipping and the queue's scatters run for
     the whole batch). Derivatives go through the plain render (a
@@ -159,9 +174,14 @@ def render_image(scene: Scene, opts: RenderOptions, key):
 
     @batch_aware.def_vmap
     def _batched(axis_size, in_batched, scene, key):
-        if _only_lights_batched(in_batched):
+        if _only_shading_batched(in_batched):
             axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
-            return jax.vmap(plain, in_axes=axes)(scene, key), True
+            # A batch over material colours reads them apart from the fields that
+            # decide the children (else one batched table read batches every ray).
+            inside = opts
+            if any(jax.tree.leaves(in_batched[0].materials)):
+                inside = dataclasses.replace(opts, split_material_read=True)
+            return jax.vmap(lambda s, k: _render_image_jit(s, inside, k), in_axes=axes)(scene, key), True
         leaves, tdef = jax.tree.flatten((scene, key))
         flags = jax.tree.leaves(in_batched)
 

@@ -78,10 +78,14 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     cw_hit = cw + spread * t
     # Anisotropic box-filter widths in uv: the cone's ellipse on the surface (long along the view at grazing angles).
     wuv = jnp.zeros_like(hit.uv) if uv_shifts is None else footprint_widths(uv_shifts, d, hit.normal, cw_hit)
-    names = ("color", "transparency", "reflectivity", "ior") + model.fields
+    path_names = ("transparency", "reflectivity", "ior")  # what decides the children
+    names = ("color",) + model.fields  # what only colours this hit's own light
     if mats.kinds_present:
         names += ("tex_scale", "tex_color2", "tex_direction")
-    rows = material_rows(mats, mat, names)
+    if opts.split_material_read:  # two reads: under jax.vmap over colours only the second is batched
+        rows = material_rows(mats, mat, path_names) | material_rows(mats, mat, names)
+    else:
+        rows = material_rows(mats, mat, names[:1] + path_names + names[1:])
     color = surface_color(mats, mat, hit.uv, wuv, st.filter_textures, rows)
 
     # --- direct light -----------------------------------------------------
