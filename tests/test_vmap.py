@@ -86,9 +86,9 @@ def test_gradient_of_a_vmapped_render_matches_a_loop_of_gradients():
 
 def test_a_batch_over_colours_is_batched_inside_and_matches_a_loop():
     """A batch over what only colours a hit's own light (a material's colour, the
-    background, lights) is batched inside the render: every ray is the batch's; the
-    material fields that decide the children are read apart from the colours, so
-    that they stay unbatched. Anything that moves a ray (an IOR, a reflectivity, a
+    background, lights) is batched inside the render: the camera, reflected and
+    refracted rays are shared by the batch; the material fields that decide the
+    children are read apart from the colours, so that they stay unbatched. Anything that moves a ray (an IOR, a reflectivity, a
     radius, the camera) is rendered as a sequence."""
     from raytrax.renderer.tiles import _only_shading_batched
 

@@ -101,8 +101,8 @@ def render(
     differentiable with respect to every float leaf of ``scene``. Under
     ``jax.vmap`` a batch over what only colours a hit's light (light parameters,
     material colours and Phong terms, texture colours, background and ambient) is
-    batched inside the render (every ray and hit is shared: a quarter to a third
-    of a loop's cost per image); a batch over anything that moves rays is
+    batched inside the render (camera, reflected and refracted rays and their hits
+    are shared: a quarter to a third of a loop's cost per image); a batch over anything that moves rays is
     rendered as a ``lax.map`` of single renders, at a loop's cost per image (see
     ``docs/scaling.md``).
     """

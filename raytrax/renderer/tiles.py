@@ -122,8 +122,9 @@ SHADING_ONLY_MATERIAL_FIELDS = ("color", "ambient", "diffuse", "specular", "shin
 
 def _only_shading_batched(in_batched) -> bool:
     """Whether the batched leaves (``in_batched``: flags of ``(scene, key)``) are all
-    lights, the environment or :data:`SHADING_ONLY_MATERIAL_FIELDS`: then every ray,
-    hit and branch is the same for the whole batch and only the radiance differs."""
+    lights, the environment or :data:`SHADING_ONLY_MATERIAL_FIELDS`: then the camera,
+    reflected and refracted rays, their hits and branches are the same for the whole
+    batch, and only the radiance (and a light's shadow rays) differs."""
     scene_b, key_b = in_batched
     rest = eqx.tree_at(
         lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in SHADING_ONLY_MATERIAL_FIELDS)),
@@ -151,8 +152,9 @@ def render_image(scene: Scene, opts: RenderOptions, key):
 
     Under ``jax.vmap`` a batch whose only batched leaves colour what a hit
     sends to the camera (lights, the environment,
-    :data:`SHADING_ONLY_MATERIAL_FIELDS`) is batched inside (every ray, hit and
-    branch is shared by the batch); any other batch is rendered as a ``lax.map`` of single renders, which costs
+    :data:`SHADING_ONLY_MATERIAL_FIELDS`) is batched inside (camera, reflected
+    and refracted rays, their hits and branches are shared by the batch); any
+    other batch is rendered as a ``lax.map`` of single renders, which costs
     per image what a loop of renders costs, where batching every ray costs
     about twice as much (the dead-ray skipping and the queue's scatters run for
     the whole batch). Derivatives go through the plain render (a
