@@ -297,3 +297,20 @@ class Physical(ShadingModel):
 
 #: The shading models by name (a scene's ``shading``).
 SHADING_MODELS: dict[str, ShadingModel] = {m.name: m for m in (Classic(), Physical())}
+
+
+#: The material fields that decide a hit's children (their directions and weights, so
+#: which rays are traced at the next depth).
+CHILD_FIELDS = ("transparency", "reflectivity", "ior")
+
+#: The material fields that only colour the light a hit sends back (its own shading):
+#: the colour, every shading model's own terms, the pattern's second colour and the
+#: image textures' texels. Never a ray's direction or throughput.
+COLOUR_FIELDS = (
+    ("color",)
+    + tuple(dict.fromkeys(f for m in SHADING_MODELS.values() for f in m.fields))
+    + (
+        "tex_color2",
+        "images",
+    )
+)

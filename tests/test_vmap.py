@@ -11,6 +11,8 @@ member's own.
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -90,6 +92,7 @@ def test_a_batch_over_colours_is_batched_inside_and_matches_a_loop():
     refracted rays are shared by the batch; the material fields that decide the
     children are read apart from the colours, so that they stay unbatched. Anything that moves a ray (an IOR, a reflectivity, a
     radius, the camera) is rendered as a sequence."""
+    from raytrax.materials import CHILD_FIELDS, COLOUR_FIELDS
     from raytrax.renderer.tiles import _only_shading_batched
 
     none = jax.tree.map(lambda _: False, BASE)
@@ -106,6 +109,9 @@ def test_a_batch_over_colours_is_batched_inside_and_matches_a_loop():
         lambda s: s.camera.position,
     ]
     assert [_only_shading_batched(flags(w)) for w in inside] == [True] * 3
+    # The two kinds of material field are disjoint, and both are fields of the materials.
+    fields = {f.name for f in dataclasses.fields(rt.Materials)}
+    assert not set(CHILD_FIELDS) & set(COLOUR_FIELDS) and set(CHILD_FIELDS + COLOUR_FIELDS) <= fields
     assert [_only_shading_batched(flags(w)) for w in outside] == [False] * 5
 
     def with_colour(c, bg):

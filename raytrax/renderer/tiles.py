@@ -17,6 +17,7 @@ from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin,
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..masks import any_true
+from ..materials import COLOUR_FIELDS
 from ..scene import Scene
 from ..tracing import tangent_seed
 from .options import RenderOptions
@@ -114,20 +115,14 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
     return over_devices(run, n_dev, None)((xyt, live, pix, wt), (scene, spread))
 
 
-#: Material fields that only colour a hit's own light (never a ray's direction or
-#: throughput, so never which rays are traced): a batch over them, the lights and the
-#: environment is batched inside the render.
-SHADING_ONLY_MATERIAL_FIELDS = ("color", "ambient", "diffuse", "specular", "shininess", "tex_color2", "images")
-
-
 def _only_shading_batched(in_batched) -> bool:
     """Whether the batched leaves (``in_batched``: flags of ``(scene, key)``) are all
-    lights, the environment or :data:`SHADING_ONLY_MATERIAL_FIELDS`: then the camera,
+    lights, the environment or :data:`raytrax.materials.COLOUR_FIELDS`: then the camera,
     reflected and refracted rays, their hits and branches are the same for the whole
     batch, and only the radiance (and a light's shadow rays) differs."""
     scene_b, key_b = in_batched
     rest = eqx.tree_at(
-        lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in SHADING_ONLY_MATERIAL_FIELDS)),
+        lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in COLOUR_FIELDS)),
         scene_b,
         replace_fn=lambda node: jax.tree.map(lambda _: False, node),
     )
@@ -152,7 +147,7 @@ def render_image(scene: Scene, opts: RenderOptions, key):
 
     Under ``jax.vmap`` a batch whose only batched leaves colour what a hit
     sends to the camera (lights, the environment,
-    :data:`SHADING_ONLY_MATERIAL_FIELDS`) is batched inside (camera, reflected
+    :data:`raytrax.materials.COLOUR_FIELDS`) is batched inside (camera, reflected
     and refracted rays, their hits and branches are shared by the batch); any
     other batch is rendered as a ``lax.map`` of single renders, which costs
     per image what a loop of renders costs, where batching every ray costs

@@ -33,7 +33,7 @@ from ..branching import any_in_batch
 from ..camera import rays_through
 from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
-from ..materials import SHADING_MODELS, facing, interface, material_rows, refract
+from ..materials import CHILD_FIELDS, SHADING_MODELS, facing, interface, material_rows, refract
 from ..scene import Scene
 from ..textures import footprint_widths, hit_with_uv_shifts, needs_footprint, surface_color
 from ..tracing import tangent_seed
@@ -78,14 +78,13 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     cw_hit = cw + spread * t
     # Anisotropic box-filter widths in uv: the cone's ellipse on the surface (long along the view at grazing angles).
     wuv = jnp.zeros_like(hit.uv) if uv_shifts is None else footprint_widths(uv_shifts, d, hit.normal, cw_hit)
-    path_names = ("transparency", "reflectivity", "ior")  # what decides the children
-    names = ("color",) + model.fields  # what only colours this hit's own light
+    names = ("color",) + model.fields
     if mats.kinds_present:
         names += ("tex_scale", "tex_color2", "tex_direction")
     if opts.split_material_read:  # two reads: under jax.vmap over colours only the second is batched
-        rows = material_rows(mats, mat, path_names) | material_rows(mats, mat, names)
-    else:
-        rows = material_rows(mats, mat, names[:1] + path_names + names[1:])
+        rows = material_rows(mats, mat, CHILD_FIELDS) | material_rows(mats, mat, names)
+    else:  # one read (the colour first, in the order this program has always been compiled with)
+        rows = material_rows(mats, mat, names[:1] + CHILD_FIELDS + names[1:])
     color = surface_color(mats, mat, hit.uv, wuv, st.filter_textures, rows)
 
     # --- direct light -----------------------------------------------------
