@@ -16,7 +16,7 @@ from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
-from ..masks import any_true, count_true, true_indices
+from ..masks import any_true, count_true, pack_map, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
 from .records import object_key, pack_records, packed_rows, records, unpack_records
@@ -138,31 +138,49 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     dt = scene.dtype
     jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
     xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
-    R = rec_at(xy, eo.devices)
+    with jax.named_scope("edge_records"):
+        R = rec_at(xy, eo.devices)
     L = R.first.shape[1]
     npairs = Gh * (Gw - 1) + (Gh - 1) * Gw
 
     def okey(g):
         return object_key(P_sg, ns, g)
 
-    # Per pair, the first and the second sample's record: slices of the grid (the pairs
-    # are in :func:`_pairs`' order), not gathers.
-    def sides(x):  # (..., S) -> (..., npairs) twice
-        g = x.reshape(x.shape[:-1] + (Gh, Gw))
-        nh, nv = x.shape[:-1] + (Gh * (Gw - 1),), x.shape[:-1] + ((Gh - 1) * Gw,)
-        first = jnp.concatenate([g[..., :, :-1].reshape(nh), g[..., :-1, :].reshape(nv)], -1)
-        second = jnp.concatenate([g[..., :, 1:].reshape(nh), g[..., 1:, :].reshape(nv)], -1)
-        return first, second
+    nslot = 1 + 4 * L
+    budget = eo.budget if eo.budget is not None else default_budget(S, n)
+    budget = min(budget, npairs * nslot)
+    nc, C = equal_chunks(budget, CHUNK, eo.devices)
+    K = nc * C
+    # The pairs whose two samples' records differ anywhere (a hit, a branch or an
+    # occluder at any level), packed at the front: a few per cent of the pairs
+    # (those that straddle an edge). One pass over the grid's records; the rest of
+    # the pairing runs on at most Kp packed pairs, not on every pair of the grid.
+    dh = jnp.zeros((Gh, Gw - 1), bool)
+    dv = jnp.zeros((Gh - 1, Gw), bool)
+    for x in (R.hit, R.refr, R.first, R.last):
+        g = x.reshape((-1, Gh, Gw))
+        for r in range(g.shape[0]):
+            dh = dh | (g[r, :, :-1] != g[r, :, 1:])
+            dv = dv | (g[r, :-1, :] != g[r, 1:, :])
+    # Materialised once (else XLA recomputes the comparisons in each consumer).
+    differ = jax.lax.optimization_barrier(jnp.concatenate([dh.reshape(-1), dv.reshape(-1)]))
+    Kp = min(K, npairs)
+    cand, _, n_differ = pack_map(differ, Kp, dtype=jnp.int32)  # pair numbers (_pair_samples' order)
+    ca, cb, ch = _pair_samples(cand, Gw, Gh)
+    valid = jnp.arange(Kp, dtype=jnp.int32) < n_differ
+
+    def sides(x):  # (..., S) -> (..., Kp) at the first and at the second sample of each pair
+        return x[..., ca], x[..., cb]
 
     ha, hb = sides(R.hit)
     ra, rb = sides(R.refr)
     same_r = ra == rb
-    fa_all, fb_all = sides(R.first)  # (D, L, npairs)
+    fa_all, fb_all = sides(R.first)  # (D, L, Kp)
     la_all, lb_all = sides(R.last)
     # Visibility: the first chain level whose hits differ, after a common prefix.
-    pre = jnp.ones((npairs,), bool)
-    vis_act = jnp.zeros((npairs,), bool)
-    lv = jnp.zeros((npairs,), jnp.int32)
+    pre = valid
+    vis_act = jnp.zeros((Kp,), bool)
+    lv = jnp.zeros((Kp,), jnp.int32)
     for lvl in range(D):
         dh = ha[lvl] != hb[lvl]
         new = pre & dh
@@ -175,9 +193,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     # of either sample's shadow segment), each distinct occluding object once.
     ls = []
     for k in range(L):
-        pre = jnp.ones((npairs,), bool)
-        found = jnp.zeros((npairs,), bool)
-        lk = jnp.zeros((npairs,), jnp.int32)
+        pre = valid
+        found = jnp.zeros((Kp,), bool)
+        lk = jnp.zeros((Kp,), jnp.int32)
         for lvl in range(D):
             eqh = ha[lvl] == hb[lvl]
             dif = (
@@ -204,25 +222,20 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             for i in range(j):
                 new = new & (keys[j] != keys[i])
             act.append(new)
-    nslot = 1 + 4 * L
-    act = jnp.stack(act, 1)  # (npairs, nslot)
-    budget = eo.budget if eo.budget is not None else default_budget(S, n)
-    budget = min(budget, act.size)
-    nc, C = equal_chunks(budget, CHUNK, eo.devices)
-    K = nc * C
+    act = jnp.stack(act, 1)  # (Kp, nslot)
     per_pair = jnp.sum(act, 1, dtype=jnp.int32)
     count = count_true(act)
     # Events in pair-major order, compacted in two steps (the pairs with an event,
-    # then their slots), so that no prefix sum runs over every pair's every slot.
+    # then their slots).
     has = per_pair > 0
     p_idx = true_indices(has, K)
     sub = act[p_idx] & (jnp.arange(K) < count_true(has))[:, None]
     flat = true_indices(sub.ravel(), K)
     flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
-    pair = p_idx.astype(jnp.int32)[flat // nslot]
+    pair = p_idx.astype(jnp.int32)[flat // nslot]  # among the packed pairs
     slot = flat % nslot
-    ea, eb, eh = _pair_samples(pair, Gw, Gh)
+    ea, eb, eh = ca[pair], cb[pair], ch[pair]
     vis = slot == 0
     k_ev = jnp.maximum(slot - 1, 0) // 4
     j_ev = jnp.maximum(slot - 1, 0) % 4
@@ -317,12 +330,13 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             vals = vals.at[j].set(jnp.where(cls, gv, vals[j]))  # pyright: ignore
             return vals, jnp.where(~cls & neg, mid, lo), jnp.where(~cls & ~neg, mid, hi)
 
-        vals, lo, hi = jax.lax.fori_loop(
-            0,
-            n_cls + BISECTION_STEPS,
-            step,
-            (jnp.zeros((n_cls,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
-        )
+        with jax.named_scope("edge_locate"):
+            vals, lo, hi = jax.lax.fori_loop(
+                0,
+                n_cls + BISECTION_STEPS,
+                step,
+                (jnp.zeros((n_cls,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
+            )
         ev, ok, case2 = classify(vals)
         sgn = ev.sign.astype(dt)
         ev2 = cat(ev, ev)
@@ -396,6 +410,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
         m = max(1, E // 2)
         okd = dup(ok)
         nfull = -(-(2 * E) // m)
+        n0 = -(-E // m)  # step 0's batches: both sides of an event start at its edge point
 
         def follow(sd, mid):
             """Follow the edge from ``x + mid t`` along the pair direction (chord-Newton
@@ -455,24 +470,27 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             return a[0], a[1], a[2], a[3 : 3 + nr], a[3 + nr :]
 
         def item(i, st):
-            """Work item ``i``: steps 0 and 1 on batch ``i % nfull`` of all sides (``i <
-            2 nfull``), then bisection step ``(i - 2 nfull) % (END_STEPS)`` on batch
-            ``(i - 2 nfull) // END_STEPS`` of the sides that still need it. The state
+            """Work item ``i``: step 0 on batch ``i`` of the first ``E`` sides (``i < n0``;
+            the records and feature at an event's edge point are its two sides' both),
+            step 1 on batch ``i - n0`` of all sides (``i < n0 + nfull``), then bisection
+            step ``j % END_STEPS`` on batch ``j // END_STEPS`` (``j = i - n0 - nfull``) of
+            the sides that still need it. The state
             of every side is two arrays, ``(2, 2E)`` floats (the bracket ``lo, hi``)
             and ``(3 + 2 nr, 2E)`` integers (``full``, ``lost``, the feature, and the
             packed records beside the edge point on the minus and the plus side),
             each read and written as one gather and one scatter."""
             fl, it = st
-            first = i < 2 * nfull
-            step = jnp.where(first, i // nfull, 2 + (i - 2 * nfull) % END_STEPS)
-            b = jnp.where(first, i % nfull, (i - 2 * nfull) // END_STEPS)
+            first = i < n0 + nfull
+            j = i - n0 - nfull
+            step = jnp.where(i < n0, 0, jnp.where(first, 1, 2 + j % END_STEPS))
+            b = jnp.where(i < n0, i, jnp.where(first, i - n0, j // END_STEPS))
             full_s, lost_s, _, _, _ = rows(it)
             need = ~((full_s != 0) | (lost_s != 0)) & okd  # a crossing that adds nothing needs no piece
             order = true_indices(need, 2 * E)
             cnt = count_true(need)
             pos = b * m + jnp.arange(m)
             idx = jnp.where(first, jnp.minimum(pos, 2 * E - 1), order[jnp.minimum(pos, 2 * E - 1)])
-            valid = jnp.where(first, pos < 2 * E, pos < cnt)
+            valid = jnp.where(step == 0, pos < E, jnp.where(first, pos < 2 * E, pos < cnt))
 
             def run(st):
                 fl, it = st
@@ -502,18 +520,24 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                     ]
                 )
                 new_f = jnp.stack([jnp.where(sb & v, mid, lo_i), jnp.where(sb & ~v, mid, hi_i)])
-                # Only the batch's real slots are written (padding slots are dropped).
+                # Only the batch's real slots are written (padding slots are dropped);
+                # step 0's integer state goes to both sides of its events (the bracket
+                # of the second side, its own).
                 wi = jnp.where(valid, idx, 2 * E)
-                return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi].set(new_i, mode="drop")
+                wi2 = jnp.concatenate([wi, jnp.where(valid & s0, idx + E, 2 * E)])
+                return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi2].set(
+                    jnp.concatenate([new_i, new_i], 1), mode="drop"
+                )
 
             return jax.lax.cond(any_true(valid), run, lambda st: st, st)
 
-        fl, it = jax.lax.fori_loop(
-            0,
-            2 * nfull + END_STEPS * nfull,
-            item,
-            (jnp.stack([jnp.zeros_like(sided), sided]), jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32)),
-        )
+        with jax.named_scope("edge_follow"):
+            fl, it = jax.lax.fori_loop(
+                0,
+                n0 + nfull + END_STEPS * nfull,
+                item,
+                (jnp.stack([jnp.zeros_like(sided), sided]), jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32)),
+            )
         lo, hi = fl[0], fl[1]
         full_s, lost_s, _, pk_m, pk_p = rows(it)
         full, lost = full_s != 0, lost_s != 0
@@ -608,7 +632,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     which = jnp.where(vis, L, k_ev)
     sel = jnp.stack([which, which] + [jnp.full_like(which, L)] * (npr - 2), 1).ravel()  # event-major
     need = jnp.repeat(res["ok"], npr)
-    fl = radiance_at(jnp.moveaxis(probe, 1, 2).reshape(2, K * npr), sel, need).reshape(K, npr, 3)
+    with jax.named_scope("edge_probes"):
+        fl = radiance_at(jnp.moveaxis(probe, 1, 2).reshape(2, K * npr), sel, need).reshape(K, npr, 3)
     in_b, sil = res["in_b"][:, None], res["sil"][:, None]
     f0 = jnp.where(in_b, fl[:, 1], fl[:, 0])
     f1, f2 = (fl[:, 2], fl[:, 3]) if ns else (f0, f0)
@@ -625,7 +650,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
     coef = eqx.error_if(
         coef,
-        count > budget,
+        (count > budget) | (n_differ > Kp),
         f"edge_gradients: more sample pairs straddle an edge than "
         f"edge_budget={budget}; pass a larger edge_budget to render",
     )
