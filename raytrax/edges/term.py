@@ -479,15 +479,21 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             and ``(3 + 2 nr, 2E)`` integers (``full``, ``lost``, the feature, and the
             packed records beside the edge point on the minus and the plus side),
             each read and written as one gather and one scatter."""
-            fl, it = st
+            fl, it, order, cnt = st
             first = i < n0 + nfull
             j = i - n0 - nfull
             step = jnp.where(i < n0, 0, jnp.where(first, 1, 2 + j % END_STEPS))
             b = jnp.where(i < n0, i, jnp.where(first, i - n0, j // END_STEPS))
-            full_s, lost_s, _, _, _ = rows(it)
-            need = ~((full_s != 0) | (lost_s != 0)) & okd  # a crossing that adds nothing needs no piece
-            order = true_indices(need, 2 * E)
-            cnt = count_true(need)
+
+            def sides_to_bisect():
+                # After step 1 (which alone writes ``full`` and ``lost``): the sides whose
+                # piece ends inside its strip, packed. A crossing that adds nothing
+                # needs no piece.
+                full_s, lost_s, _, _, _ = rows(it)
+                need = ~((full_s != 0) | (lost_s != 0)) & okd
+                return true_indices(need, 2 * E), count_true(need)
+
+            order, cnt = jax.lax.cond(i == n0 + nfull, sides_to_bisect, lambda: (order, cnt))
             pos = b * m + jnp.arange(m)
             idx = jnp.where(first, jnp.minimum(pos, 2 * E - 1), order[jnp.minimum(pos, 2 * E - 1)])
             valid = jnp.where(step == 0, pos < E, jnp.where(first, pos < 2 * E, pos < cnt))
@@ -529,14 +535,20 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                     jnp.concatenate([new_i, new_i], 1), mode="drop"
                 )
 
-            return jax.lax.cond(any_true(valid), run, lambda st: st, st)
+            fl, it = jax.lax.cond(any_true(valid), run, lambda st: st, (fl, it))
+            return fl, it, order, cnt
 
         with jax.named_scope("edge_follow"):
-            fl, it = jax.lax.fori_loop(
+            fl, it, _, _ = jax.lax.fori_loop(
                 0,
                 n0 + nfull + END_STEPS * nfull,
                 item,
-                (jnp.stack([jnp.zeros_like(sided), sided]), jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32)),
+                (
+                    jnp.stack([jnp.zeros_like(sided), sided]),
+                    jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32),
+                    jnp.zeros((2 * E,), int),  # jax's default integer, as true_indices and count_true give
+                    jnp.zeros((), int),
+                ),
             )
         lo, hi = fl[0], fl[1]
         full_s, lost_s, _, pk_m, pk_p = rows(it)
