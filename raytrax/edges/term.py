@@ -643,9 +643,16 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     npr = probe.shape[1]
     which = jnp.where(vis, L, k_ev)
     sel = jnp.stack([which, which] + [jnp.full_like(which, L)] * (npr - 2), 1).ravel()  # event-major
-    need = jnp.repeat(res["ok"], npr)
+    # Only the rays whose radiance is used are traced, packed at the front: the two
+    # probes of a crossing whose probes see what defines it (jump_ok), and the inner
+    # rays of those beside a sphere's silhouette.
+    used = res["ok"] & res["jump_ok"]
+    need = jnp.stack([used, used] + [used & res["sil"]] * (npr - 2), 1).ravel()
+    src, dst, n_rays = pack_map(need, K * npr, dtype=jnp.int32)
+    xy_p = jnp.moveaxis(probe, 1, 2).reshape(2, K * npr)[:, src]
     with jax.named_scope("edge_probes"):
-        fl = radiance_at(jnp.moveaxis(probe, 1, 2).reshape(2, K * npr), sel, need).reshape(K, npr, 3)
+        traced = radiance_at(xy_p, sel[src], jnp.arange(K * npr, dtype=jnp.int32) < n_rays)
+    fl = jnp.where(need[:, None], traced[jnp.minimum(dst, K * npr - 1)], 0.0).reshape(K, npr, 3)
     in_b, sil = res["in_b"][:, None], res["sil"][:, None]
     f0 = jnp.where(in_b, fl[:, 1], fl[:, 0])
     f1, f2 = (fl[:, 2], fl[:, 3]) if ns else (f0, f0)
