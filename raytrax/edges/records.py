@@ -21,6 +21,7 @@ from .prims import Prims, kind_ids, specular_step
 
 SUB_MIN = 1024  # the least rays per sub-batch of a records level
 RECORD_TILE = 1 << 18  # the most rays recorded at once
+TILES_PER_DEVICE = 4  # the fewest tiles per device when the records are split over devices
 
 
 def search(scene, kinds, off, o, d, tmax=None):
@@ -112,10 +113,14 @@ def records(scene, kinds, off, P: Prims, xy, width, height, depth, devices: int 
     ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``. More than
     ``RECORD_TILE`` rays are recorded in equal tiles of at most that many
     (``lax.map``), so that memory holds one tile's rays, not every sample's;
-    ``devices > 1``: the tiles are split over that many devices."""
+    ``devices > 1``: at least :data:`TILES_PER_DEVICE` tiles per device, dealt to
+    the devices in turn, so that a costly image region (a glass ball's long
+    chains) is shared between them."""
     M = xy.shape[1]
-    n, c = equal_chunks(M, RECORD_TILE, devices)
-    return map_chunks(lambda x: _records(scene, kinds, off, P, x, width, height, depth), xy, M, n, c, devices=devices)
+    n, c = equal_chunks(M, RECORD_TILE, devices * TILES_PER_DEVICE if devices > 1 else 1)
+    return map_chunks(
+        lambda x: _records(scene, kinds, off, P, x, width, height, depth), xy, M, n, c, devices=devices, deal=True
+    )
 
 
 def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:
