@@ -407,7 +407,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             "k": dup(c["k"]),
             "vis": dup(vis),
         }
-        m = max(1, E // 2)
+        m = max(1, E // 4)
         okd = dup(ok)
         nfull = -(-(2 * E) // m)
         n0 = -(-E // m)  # step 0's batches: both sides of an event start at its edge point
