@@ -34,7 +34,8 @@ IMAGE_CHUNK = 1024  # crossings per chunk of the boundary term (:func:`edge_imag
 class EdgeOptions:
     """Static options of the boundary term: ``samples`` per pixel side (``n``),
     ``budget``, the most sample pairs with an edge between them (``None``:
-    :func:`default_budget`), ``depth``, the chain levels
+    :func:`default_budget`; rounded up to whole chunks, it also bounds the pairs
+    whose records differ at all), ``depth``, the chain levels
     followed (the render's ``max_depth + 1``), and ``devices``, over how many of
     ``jax.devices()`` the grid's records and the events are split."""
 

@@ -94,8 +94,9 @@ def render(
     the derivative of the pixel-integrated image as ``spp`` grows. Needs
     ``key=None``. ``edge_budget``: the most sample pairs with an edge between
     them (default: a quarter of the samples, at least 4096 and, past 65536, at most
-    the larger of 65536 and samples / (2 sqrt(spp)); exceeding it is a runtime error
-    naming the option).
+    the larger of 65536 and samples / (2 sqrt(spp)); rounded up to whole chunks, it
+    also bounds the pairs whose samples' records differ at all; exceeding it is a
+    runtime error naming the option).
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``. Under
