@@ -163,8 +163,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
         for r in range(g.shape[0]):
             dh = dh | (g[r, :, :-1] != g[r, :, 1:])
             dv = dv | (g[r, :-1, :] != g[r, 1:, :])
-    # Materialised once (else XLA recomputes the comparisons in each consumer).
-    differ = jax.lax.optimization_barrier(jnp.concatenate([dh.reshape(-1), dv.reshape(-1)]))
+    differ = jnp.concatenate([dh.reshape(-1), dv.reshape(-1)])
     Kp = min(K, npairs)
     cand, _, n_differ = pack_map(differ, Kp, dtype=jnp.int32)  # pair numbers (_pair_samples' order)
     ca, cb, ch = _pair_samples(cand, Gw, Gh)
@@ -472,7 +471,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
 
         def item(i, st):
             """Work item ``i``: step 0 on batch ``i`` of the first ``E`` sides (``i < n0``;
-            the records and feature at an event's edge point are its two sides' both),
+            both sides of an event start from the records and feature at its edge point),
             step 1 on batch ``i - n0`` of all sides (``i < n0 + nfull``), then bisection
             step ``j % END_STEPS`` on batch ``j // END_STEPS`` (``j = i - n0 - nfull``) of
             the sides that still need it. The state
@@ -528,8 +527,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 )
                 new_f = jnp.stack([jnp.where(sb & v, mid, lo_i), jnp.where(sb & ~v, mid, hi_i)])
                 # Only the batch's real slots are written (padding slots are dropped);
-                # step 0's integer state goes to both sides of its events (the bracket
-                # of the second side, its own).
+                # step 0's integer state goes to both sides of its events (each side
+                # keeps its own bracket).
                 wi = jnp.where(valid, idx, 2 * E)
                 wi2 = jnp.concatenate([wi, jnp.where(valid & s0, idx + E, 2 * E)])
                 return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi2].set(
