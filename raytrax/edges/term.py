@@ -156,14 +156,14 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     # occluder at any level), packed at the front: a few per cent of the pairs
     # (those that straddle an edge). One pass over the grid's records; the rest of
     # the pairing runs on at most Kp packed pairs, not on every pair of the grid.
-    dh = jnp.zeros((Gh, Gw - 1), bool)
-    dv = jnp.zeros((Gh - 1, Gw), bool)
+    differ_h = jnp.zeros((Gh, Gw - 1), bool)
+    differ_v = jnp.zeros((Gh - 1, Gw), bool)
     for x in (R.hit, R.refr, R.first, R.last):
         g = x.reshape((-1, Gh, Gw))
         for r in range(g.shape[0]):
-            dh = dh | (g[r, :, :-1] != g[r, :, 1:])
-            dv = dv | (g[r, :-1, :] != g[r, 1:, :])
-    differ = jnp.concatenate([dh.reshape(-1), dv.reshape(-1)])
+            differ_h = differ_h | (g[r, :, :-1] != g[r, :, 1:])
+            differ_v = differ_v | (g[r, :-1, :] != g[r, 1:, :])
+    differ = jnp.concatenate([differ_h.reshape(-1), differ_v.reshape(-1)])
     Kp = min(K, npairs)
     cand, _, n_differ = pack_map(differ, Kp, dtype=jnp.int32)  # pair numbers (_pair_samples' order)
     ca, cb, ch = _pair_samples(cand, Gw, Gh)
@@ -182,11 +182,11 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     vis_act = jnp.zeros((Kp,), bool)
     lv = jnp.zeros((Kp,), jnp.int32)
     for lvl in range(D):
-        dh = ha[lvl] != hb[lvl]
-        new = pre & dh
+        other = ha[lvl] != hb[lvl]
+        new = pre & other
         vis_act = vis_act | new
         lv = jnp.where(new, lvl, lv)
-        pre = pre & ~dh & same_r[lvl]
+        pre = pre & ~other & same_r[lvl]
     act = [vis_act]
     # Shadows: per light, the first level (same hit, common prefix) whose shadow
     # records differ; slots for light k, candidate occluder j (last / first occluder

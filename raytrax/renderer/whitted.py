@@ -83,7 +83,7 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
         names += ("tex_scale", "tex_color2", "tex_direction")
     if opts.split_material_read:  # two reads: under jax.vmap over colours only the second is batched
         rows = material_rows(mats, mat, CHILD_FIELDS) | material_rows(mats, mat, names)
-    else:  # one read (the colour first, in the order this program has always been compiled with)
+    else:  # one read of every field (faster where nothing is batched)
         rows = material_rows(mats, mat, names[:1] + CHILD_FIELDS + names[1:])
     color = surface_color(mats, mat, hit.uv, wuv, st.filter_textures, rows)
 
