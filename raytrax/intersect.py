@@ -54,6 +54,7 @@ class Kind(NamedTuple):
     crossings: Callable | None = None  # (ray, P, tmax) -> (n, B) surface crossings; None: one per hit
     accel: B.Accel | None = None  # triangle BVH search arrays (see raytrax.bvh); None: brute force
     spec: S.KindSpec | None = None  # the registry entry; None for the merged triangle list
+    curvature: jax.Array | None = None  # (N,) 1 / radius (differentiable); None: flat
 
 
 class Hit(NamedTuple):
@@ -63,6 +64,7 @@ class Hit(NamedTuple):
     uv: jax.Array  # (2, n)
     rate: jax.Array  # (2, n) d(uv)/d(world length)
     material: jax.Array  # (n,) int, 0 where not valid
+    curvature: jax.Array  # (n,) 1 / radius of the surface hit (0: flat or not valid)
 
 
 def _ng(tree):
@@ -88,7 +90,19 @@ def prepare(scene) -> list[Kind]:
         if spec.count(group):
             part = spec.search(group)
             assert part is not None, f"kind {spec.name!r} has no search"
-            kinds.append(Kind(spec.name, _ng(part.soa), part.material, part.tfun, part.hit, part.crossings, None, spec))
+            kinds.append(
+                Kind(
+                    spec.name,
+                    _ng(part.soa),
+                    part.material,
+                    part.tfun,
+                    part.hit,
+                    part.crossings,
+                    None,
+                    spec,
+                    part.curvature,
+                )
+            )
     return kinds
 
 
@@ -185,6 +199,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             jnp.zeros((2, n), o.dtype),
             jnp.zeros((2, n), o.dtype),
             jnp.zeros((n,), jnp.int32),
+            z,
         )
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     which, t0, ids = nearest_kind(kinds, ray)
@@ -198,6 +213,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
         uv = jnp.zeros((2, n), o.dtype)
         rate = jnp.zeros((2, n), o.dtype)
         mat = jnp.zeros((n,), jnp.int32)
+        curv = jnp.zeros((n,), o.dtype)
         for j, k in enumerate(kinds):
             sel = valid & (which == j)
             idx = jnp.where(sel, ids[j], 0)
@@ -210,7 +226,9 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             uv = jnp.where(sel[None], uvk, uv)
             rate = jnp.where(sel[None], rk, rate)
             mat = jnp.where(sel, V.take_rows(k.material, idx), mat)
-        return Hit(valid, t, nrm, uv, rate, mat)
+            if k.curvature is not None:
+                curv = jnp.where(sel, V.take_rows(k.curvature, idx).astype(o.dtype), curv)
+        return Hit(valid, t, nrm, uv, rate, mat, curv)
 
     def no_ray(which, t0, ids, o, d):
         z = jnp.zeros((n,), o.dtype)
@@ -221,6 +239,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             jnp.zeros((2, n), o.dtype),
             jnp.zeros((2, n), o.dtype),
             jnp.zeros((n,), jnp.int32),
+            z,
         )
 
     # Also under a cond, so that every field of the hit (validity included) is read

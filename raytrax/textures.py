@@ -24,6 +24,13 @@ direction, and the box takes that ellipse's extent along ``u`` and along ``v``
 (through ray differentials of the hit, :func:`hit_with_uv_shifts`), so a far
 checkered floor fades to its mean colour instead of aliasing while the pattern
 stays sharp across the view direction.
+
+The cone's width is the sample's share of the pixel at the camera and grows with
+the distance travelled. A curved mirror spreads it further: reflected at a sphere
+of radius ``R``, a cone of width ``w`` leaves with its spread grown by ``2 w / R``
+(so a checker seen in a convex mirror is filtered over the patch the reflected
+cone covers, not a patch as small as a flat mirror would show). Refraction keeps
+the spread: a glass sphere's focusing is not modelled.
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import raytrax as rt
 from raytrax import shapes as S
 from raytrax import textures as tx
 
@@ -314,7 +315,6 @@ GZ_HORIZON = 4
 def _grazing_scene(dtype, texture, azimuth=0.0, height=GZ_H, down=12.0):
     """``azimuth`` (degrees) turns the view from -z towards +x; the floor's u runs along
     x, v along -z."""
-    import raytrax as rt
 
     b = rt.SceneBuilder(
         "classic", width=GZ_W, height=height, spp=1, max_depth=1, background=(0.0, 0.0, 0.0), ambient=(1.0, 1.0, 1.0)
@@ -329,7 +329,6 @@ def _grazing_scene(dtype, texture, azimuth=0.0, height=GZ_H, down=12.0):
 
 @pytest.fixture(scope="module")
 def grazing_images():
-    import raytrax as rt
 
     chk = _grazing_scene(F64, tx.Checker(color2=GZ_C2, scale=1.0), azimuth=45.0)
     stp = _grazing_scene(F64, tx.Stripes(color2=GZ_C2, scale=1.0, direction=(1.0, 0.0)))
@@ -373,7 +372,6 @@ def test_grazing_checker_gradient_is_finite():
     """float32 (as users render), looking level with the floor at an odd height: the
     middle row's ray runs exactly parallel to the floor and the rows around it meet it
     at a vanishing angle. Every gradient is finite."""
-    import raytrax as rt
 
     h = GZ_H + 1
     s = _grazing_scene(jnp.float32, tx.Checker(color2=GZ_C2, scale=1.0), azimuth=30.0, height=h, down=0.0)
@@ -388,3 +386,28 @@ def test_grazing_checker_gradient_is_finite():
     bad = [k for k, v in g.items() if not np.all(np.isfinite(np.asarray(v)))]
     assert not bad, bad
     assert abs(float(g["material.floor.texture.scale"])) > 0
+
+
+def test_a_curved_mirror_widens_the_reflected_footprint():
+    """A cone of width ``w`` at a mirror of radius ``R`` leaves with its spread grown by
+    ``2 w / R`` (the normal turns by ``1 / R`` per unit of surface, a reflected direction
+    by twice that); a flat mirror and the refracted cone keep the spread."""
+    from raytrax.intersect import prepare
+    from raytrax.renderer.options import RenderOptions
+    from raytrax.renderer.whitted import shade
+
+    R = 1.5
+    b = rt.SceneBuilder("physical", width=4, height=4, spp=1, max_depth=1)
+    b.material("mirror", color=(0.0, 0.0, 0.0), reflectivity=0.9)
+    b.sphere((0.0, 0.0, 0.0), R, "mirror")
+    b.plane((0.0, -4.0, 0.0), (0.0, 1.0, 0.0), "mirror")
+    s = b.build(F64)
+    # one ray onto the sphere head on, one onto the plane (from below the sphere)
+    o = jnp.asarray([[0.0, 3.0], [0.0, -2.0], [5.0, 0.0]], F64)
+    d = jnp.asarray([[0.0, 0.0], [0.0, -1.0], [-1.0, 0.0]], F64)
+    cw, spread = jnp.asarray([0.01, 0.01], F64), jnp.asarray([0.002, 0.003], F64)
+    _, kids = shade(s, prepare(s), o, d, jnp.ones((3, 2), F64), cw, spread, RenderOptions(s.settings), False)
+    cw_hit, spread_r, spread_t = (np.asarray(x) for x in kids[-3:])
+    np.testing.assert_allclose(cw_hit, [0.01 + 0.002 * (5.0 - R), 0.01 + 0.003 * 2.0], rtol=1e-12)
+    np.testing.assert_allclose(spread_r, [0.002 + 2.0 * cw_hit[0] / R, 0.003], rtol=1e-12)
+    np.testing.assert_allclose(spread_t, [0.002, 0.003], rtol=1e-12)

@@ -49,9 +49,15 @@ SHADE_POLICY = jax.checkpoint_policies.save_only_these_names("raytrax_search", "
 def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool, sel=None):
     """Intersect and shade rays ``o, d (3, n)`` with throughput ``w (3, n)``.
 
-    Returns the radiance they contribute ``(3, n)`` and their reflected and
-    refracted children (origin, direction, throughput) plus the cone width at
-    the hit (for the children's texture footprints). ``sel (n,)`` (optional, no
+    ``cw (n,)`` is each ray's cone width at its origin and ``spread (n,)`` how fast
+    it grows per unit of distance (world units; the texture footprint at the hit is
+    ``cw + spread t``). Returns the radiance they contribute ``(3, n)`` and their
+    reflected and refracted children (origin, direction, throughput), the cone width
+    at the hit and the children's spreads: a mirror of curvature ``k`` (1 / radius)
+    spreads the reflected cone by ``2 k`` times its width (its normal turns by ``k``
+    per unit of surface; the largest turn of a reflected direction is twice that, in
+    the plane of incidence), a flat one leaves it as it is; the refracted cone keeps
+    its spread (a curved lens's focusing is not modelled). ``sel (n,)`` (optional, no
     gradient): per ray, the one light whose contribution it carries (``l`` below
     the number of lights; no ambient, no background), or everything (``>= L``).
     """
@@ -160,7 +166,8 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     contrib = jnp.where(vm, w * local, w * bg)
     # After the last allowed specular interaction, specular children see the background.
     contrib = contrib + jnp.where(last, 1.0, 0.0).astype(dt) * (wr + wt) * bg
-    return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit)
+    spread_r = spread + 2.0 * cw_hit * hit.curvature
+    return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit, spread_r, spread)
 
 
 def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
@@ -183,20 +190,24 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     ns = m // B  # samples per sub-tile at depth >= 1
     S = -(-n // ns)  # sub-tiles: enough for n samples of B rays (and n camera rays)
     cap = S * ns + m  # queue columns: every sub-tile, and a block written past the last live one
-    # A ray's state: origin, direction, throughput (3 each) and cone width, as rows
-    # of a (2, 10, B, cap) queue; its sample's id in a (2, B, cap) queue (n: none).
+    # A ray's state: origin, direction, throughput (3 each) and, where a texture reads
+    # footprints, cone width and its spread (shade), as rows of a (2, r, B, cap) queue;
+    # its sample's id in a (2, B, cap) queue (n: none).
     # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
+    footprint = needs_footprint(scene.materials, st.filter_textures)
+    r = 11 if footprint else 9
     seed = tangent_seed(scene, dt)
-    queue = (jnp.zeros((2, 10, B, cap), dt) + seed, jnp.full((2, B, cap), n, jnp.int32))
+    queue = (jnp.zeros((2, r, B, cap), dt) + seed, jnp.full((2, B, cap), n, jnp.int32))
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
 
-    def camera_rays(j):  # sub-tile j's camera rays (10, m) and sample ids (m,) (n: padding)
+    def camera_rays(j):  # sub-tile j's camera rays (r, m) and sample ids (m,) (n: padding)
         start = j * m
         oc, dc = rays_through(
             scene.camera, jax.lax.dynamic_slice(xy0, (jnp.zeros((), start.dtype), start), (2, m)), st.width, st.height
         )
-        rays = jnp.concatenate([oc, dc, jnp.ones_like(oc), jnp.zeros((1, m), dt)])
+        cone = [jnp.zeros((1, m), dt), jnp.full((1, m), spread, dt)] if footprint else []
+        rays = jnp.concatenate([oc, dc, jnp.ones_like(oc), *cone])
         sid = start + jnp.arange(m, dtype=jnp.int32)
         return rays, jnp.where(sid < n, sid, n)
 
@@ -211,25 +222,29 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
         # stored per sub-tile are its input rays.
         @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
         def sub_tile(rays, sid_t, *extra):
-            contrib, kids = shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], rays[9], spread, opts, last, *extra)
+            cw, sp = (rays[9], rays[10]) if footprint else (jnp.zeros((m,), dt), spread)
+            contrib, kids = shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], cw, sp, opts, last, *extra)
 
             def results(g, children):  # g rays per sample in this sub-tile (1 at depth 0, else B)
                 k = m // g
                 sids = sid_t[:k]  # the sample of each (slot-major: slot 0 first)
                 rad_k = contrib.reshape(3, g, k).sum(1)
                 if not children:  # the last depth: no children are traced
-                    block, bid, c = jnp.zeros((10, B, m), dt), jnp.zeros((m,), jnp.int32), jnp.zeros((), jnp.int32)
+                    block, bid, c = jnp.zeros((r, B, m), dt), jnp.zeros((m,), jnp.int32), jnp.zeros((), jnp.int32)
                 else:
-                    po, rd, wr, pi, td, wt, cwh = kids
-                    # (10, 2g, k) candidates: the reflected children of the g slots, then the refracted
+                    po, rd, wr, pi, td, wt, cwh, spr, spt = kids
+                    # (r, 2g, k) candidates: the reflected children of the g slots, then the refracted
+                    refl, refr = [po, rd, wr], [pi, td, wt]
+                    if footprint:
+                        refl, refr = refl + [cwh[None], spr[None]], refr + [cwh[None], spt[None]]
                     cands = jnp.concatenate(
                         [
-                            jnp.concatenate([a.reshape(-1, g, k) for a in (po, rd, wr, cwh[None])]),
-                            jnp.concatenate([a.reshape(-1, g, k) for a in (pi, td, wt, cwh[None])]),
+                            jnp.concatenate([a.reshape(-1, g, k) for a in refl]),
+                            jnp.concatenate([a.reshape(-1, g, k) for a in refr]),
                         ],
                         1,
                     )
-                    kept = C_.pick(cands, C_.top_children(cands[6:9], B))  # (10, B, k)
+                    kept = C_.pick(cands, C_.top_children(cands[6:9], B))  # (r, B, k)
                     alive = jnp.any(kept[6:9] > 0, (0, 1)) & (sids < n)
                     block, bid, c = C_.packed(alive, kept, sids, m)
                 if k < m:  # radiance per sample, padded to m samples (id n: none)

@@ -77,14 +77,17 @@ class Key(NamedTuple):
 class SearchPart(NamedTuple):
     """What :func:`raytrax.intersect.prepare` needs of a kind: stop-gradient
     component arrays ``(N,)``, materials, the ``(ray, P, tmin) -> (n, B)`` distance
-    kernel, the differentiable ``(idx, o, d, t0) -> (t, n, uv, rate)`` hit, and the
-    surface-crossing kernel of shadow rays (``None``: one crossing per hit)."""
+    kernel, the differentiable ``(idx, o, d, t0) -> (t, n, uv, rate)`` hit, the
+    surface-crossing kernel of shadow rays (``None``: one crossing per hit), and each
+    primitive's curvature ``(N,)`` (1 / radius, per world unit; ``None``: flat), which
+    widens the texture footprint of rays a curved mirror reflects."""
 
     soa: dict
     material: jax.Array
     tfun: Callable
     hit: Callable
     crossings: Callable | None = None
+    curvature: jax.Array | None = None
 
 
 class EdgePolygons(NamedTuple):

@@ -99,4 +99,5 @@ class SphereSpec(KindSpec):
             sphere_t,
             lambda i, o, d, t0: sphere_hit(g.center[i].T, g.radius[i], o, d, t0),
             sphere_crossings,
+            V.safe_div(1.0, jnp.abs(g.radius)),
         )
