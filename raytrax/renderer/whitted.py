@@ -49,9 +49,9 @@ SHADE_POLICY = jax.checkpoint_policies.save_only_these_names("raytrax_search", "
 def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool, sel=None):
     """Intersect and shade rays ``o, d (3, n)`` with throughput ``w (3, n)``.
 
-    ``cw (n,)`` is each ray's cone width at its origin and ``spread (n,)`` how fast
-    it grows per unit of distance (world units; the texture footprint at the hit is
-    ``cw + spread t``). Returns the radiance they contribute ``(3, n)`` and their
+    ``cw (n,)`` is each ray's cone width at its origin and ``spread`` (``(n,)`` or a
+    scalar) how fast it grows per unit of distance (world units; the texture
+    footprint at the hit is ``cw + spread t``). Returns the radiance they contribute ``(3, n)`` and their
     reflected and refracted children (origin, direction, throughput), the cone width
     at the hit and the children's spreads: a mirror of curvature ``k`` (1 / radius)
     spreads the reflected cone by ``2 k`` times its width (its normal turns by ``k``
