@@ -186,21 +186,27 @@ def nearest_kind(kinds: list[Kind], ray, tmin=0.0):
     return which, tb, ids
 
 
+def _no_hits(o) -> Hit:
+    """The :class:`Hit` of rays from ``o (3, n)`` that hit nothing."""
+    n = o.shape[1]
+    z = jnp.zeros((n,), o.dtype)
+    return Hit(
+        jnp.zeros((n,), bool),
+        z,
+        jnp.zeros_like(o),
+        jnp.zeros((2, n), o.dtype),
+        jnp.zeros((2, n), o.dtype),
+        jnp.zeros((n,), jnp.int32),
+        z,
+    )
+
+
 def closest_hit(kinds: list[Kind], o, d) -> Hit:
     """Nearest hit of rays ``o, d (3, n)`` (``d`` unit) over all kinds; differentiable
     in the hit quantities (see module docstring)."""
     n = o.shape[1]
     if not kinds:
-        z = jnp.zeros((n,), o.dtype)
-        return Hit(
-            jnp.zeros((n,), bool),
-            z,
-            jnp.zeros_like(o),
-            jnp.zeros((2, n), o.dtype),
-            jnp.zeros((2, n), o.dtype),
-            jnp.zeros((n,), jnp.int32),
-            z,
-        )
+        return _no_hits(o)
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     which, t0, ids = nearest_kind(kinds, ray)
     # Reverse mode (integrator's shading checkpoint) keeps these instead of searching again.
@@ -231,16 +237,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
         return Hit(valid, t, nrm, uv, rate, mat, curv)
 
     def no_ray(which, t0, ids, o, d):
-        z = jnp.zeros((n,), o.dtype)
-        return Hit(
-            jnp.zeros((n,), bool),
-            z,
-            jnp.zeros_like(o),
-            jnp.zeros((2, n), o.dtype),
-            jnp.zeros((2, n), o.dtype),
-            jnp.zeros((n,), jnp.int32),
-            z,
-        )
+        return _no_hits(o)
 
     # Also under a cond, so that every field of the hit (validity included) is read
     # from materialised search results rather than re-searched inside its consumers.

@@ -228,8 +228,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     # Events in pair-major order, compacted in two steps (the pairs with an event,
     # then their slots).
     has = per_pair > 0
-    p_idx = true_indices(has, K)
-    sub = act[p_idx] & (jnp.arange(K) < count_true(has))[:, None]
+    p_idx, _, n_has = pack_map(has, K)
+    sub = act[p_idx] & (jnp.arange(K) < n_has.astype(p_idx.dtype))[:, None]
     flat = true_indices(sub.ravel(), K)
     flat = flat.astype(jnp.int32)
     live = jnp.arange(K) < count
@@ -491,7 +491,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 # needs no piece.
                 full_s, lost_s, _, _, _ = rows(it)
                 need = ~((full_s != 0) | (lost_s != 0)) & okd
-                return true_indices(need, 2 * E), count_true(need)
+                src, _, cnt = pack_map(need, 2 * E)
+                return src, cnt.astype(src.dtype)
 
             order, cnt = jax.lax.cond(i == n0 + nfull, sides_to_bisect, lambda: (order, cnt))
             pos = b * m + jnp.arange(m)
@@ -546,7 +547,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 (
                     jnp.stack([jnp.zeros_like(sided), sided]),
                     jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32),
-                    jnp.zeros((2 * E,), int),  # jax's default integer, as true_indices and count_true give
+                    jnp.zeros((2 * E,), int),  # jax's default integer, as pack_map's src
                     jnp.zeros((), int),
                 ),
             )
