@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 import raytrax as rt
+
+
+def jit_grad(loss):
+    """``jax.grad(loss)`` as one jitted program with raytrax's compiler options: the plain
+    gradients that edge tests compare with (an eager ``jax.grad`` compiles the forward and
+    the backward half of a render apart, about a fifth longer)."""
+    return jax.jit(jax.grad(loss), compiler_options=rt.compiler_options())
 
 
 def one_sphere_scene(shading="classic", *, width=16, height=16, spp=1, dtype=jnp.float32, **mat):
