@@ -35,6 +35,26 @@ def _pad_for_ynn(x):
     return x
 
 
+SMALL_MAX = 512
+"""Up to this many elements (flat) a mask is reduced in rows of 32 (:func:`_rows_of_32`),
+not padded for YNNPACK: as cheap to compile, and the library call's overhead is most of
+the cost of so small a reduction (the edge finder reduces masks of 128-512 entries
+thousands of times per call)."""
+
+
+def _rows_of_32(x, op):
+    """``op`` (``jnp.max`` or ``jnp.sum``) of a flat ``x`` as reductions of at most 32
+    elements each (rows of 32, zero-padded, then the rows' results), which XLA:CPU
+    emits as plain loops."""
+    while x.shape[0] > 32:
+        n = x.shape[0]
+        r = -(-n // 32)
+        if r * 32 > n:
+            x = jnp.concatenate([x, jnp.zeros((r * 32 - n,), x.dtype)])
+        x = op(x.reshape(r, 32), axis=1)
+    return op(x)
+
+
 def any_true(x, axis=None) -> jax.Array:
     """``jnp.any(x, axis)``, compiled cheaply: XLA:CPU rewrites a boolean reduction
     of more than 32 elements into 32-wide windows of ``i1`` vectors (up to 195 KB of
@@ -44,7 +64,10 @@ def any_true(x, axis=None) -> jax.Array:
     is the bytes' maximum."""
     b = jnp.asarray(x).astype(jnp.uint8)
     if axis is None:
-        b = _pad_for_ynn(b.reshape(-1))
+        b = b.reshape(-1)
+        if 32 < b.shape[0] <= SMALL_MAX:
+            return _rows_of_32(b, jnp.max) > 0
+        b = _pad_for_ynn(b)
     return jnp.max(b, axis=axis, initial=0) > 0
 
 
@@ -57,6 +80,8 @@ def count_true(x, dtype=None) -> jax.Array:
     dtype = _default_int() if dtype is None else dtype
     if b.shape[0] >= 2**24 or b.shape[0] <= 32:
         return jnp.sum(b, dtype=dtype)
+    if b.shape[0] <= SMALL_MAX:
+        return _rows_of_32(b.astype(jnp.int32), jnp.sum).astype(dtype)
     return jnp.sum(_pad_for_ynn(b.astype(jnp.float32))).astype(dtype)
 
 

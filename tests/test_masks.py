@@ -4,12 +4,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from raytrax.masks import all_true, any_true, count_true, pack_map, prefix_count, true_indices
+from raytrax.masks import SMALL_MAX, all_true, any_true, count_true, pack_map, prefix_count, true_indices
 
 
 def test_any_true_and_all_true_equal_jnp_any_and_all():
     rng = np.random.default_rng(0)
-    for shape, axis in [((7,), None), ((5000,), None), ((3, 40), 1), ((3, 40), 0), ((2, 3, 4), (0, 2)), ((0,), None)]:
+    shapes = [((7,), None), ((5000,), None), ((3, 40), 1), ((3, 40), 0), ((2, 3, 4), (0, 2)), ((0,), None)]
+    # Flat sizes on either side of the rows-of-32 path (33 to SMALL_MAX) and of its padding.
+    shapes += [((n,), None) for n in (33, 64, 100, SMALL_MAX, SMALL_MAX + 1)] + [((4, 25), None)]
+    for shape, axis in shapes:
         for p in (0.0, 0.01, 0.5, 1.0):
             x = rng.random(shape) < p
             assert np.array_equal(np.asarray(any_true(x, axis)), np.any(x, axis)), (shape, axis, p)
@@ -19,7 +22,7 @@ def test_any_true_and_all_true_equal_jnp_any_and_all():
 
 def test_count_true_equals_the_sum():
     rng = np.random.default_rng(1)
-    for n in (0, 5, 33, 1000, 4096, 70000):
+    for n in (0, 5, 33, 64, 100, SMALL_MAX, SMALL_MAX + 1, 1000, 4096, 70000):
         for p in (0.0, 0.3, 1.0):
             x = rng.random(n) < p
             c = count_true(jnp.asarray(x))
@@ -33,6 +36,11 @@ def test_any_true_compiles_without_boolean_reduce_windows():
     x = jnp.zeros(4096, jnp.float32)
     hlo = jax.jit(lambda v: any_true(v > 0)).lower(x).compile().as_text() or ""
     assert "pred[128]{0} reduce-window" not in hlo
+    # Small masks (reduced in rows of 32 bytes or integers): no window of booleans.
+    small = jnp.zeros(300, jnp.float32)
+    for fn in (any_true, count_true):
+        text = jax.jit(lambda v: fn(v > 0)).lower(small).compile().as_text() or ""
+        assert not [ln for ln in text.splitlines() if "reduce-window(" in ln and "= pred[" in ln], text
     ref = jax.jit(lambda v: jnp.any(v > 0)).lower(x).compile().as_text() or ""
     if jax.default_backend() == "cpu" and "reduce-window" in ref:  # the pattern any_true avoids is still XLA's
         assert hlo.count("reduce-window") < ref.count("reduce-window")

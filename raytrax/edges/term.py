@@ -16,7 +16,7 @@ from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
 from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
-from ..masks import any_true, count_true, pack_map, true_indices
+from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
 from .records import object_key, pack_records, packed_rows, records, unpack_records
@@ -54,14 +54,14 @@ def default_budget(samples: int, n: int) -> int:
     return max(4096, min(samples // 4, max(1 << 16, samples // (2 * n))))
 
 
-def _pair_samples(pair, Gw, Gh):
+def _pair_samples(pair, S, Gw):
     """The two samples (flat grid indices) of sample pairs ``pair`` and whether the
-    pair is horizontal. Pairs are numbered row by row: first the ``Gh (Gw - 1)``
-    horizontal pairs ``(i, j), (i, j + 1)``, then the ``(Gh - 1) Gw`` vertical pairs
-    ``(i, j), (i + 1, j)``."""
-    nh = Gh * (Gw - 1)
-    horiz = pair < nh
-    a = jnp.where(horiz, (pair // max(Gw - 1, 1)) * Gw + pair % max(Gw - 1, 1), pair - nh)
+    pair is horizontal, on a grid of ``S`` samples in rows of ``Gw``. Pairs are numbered
+    as the flat grid's neighbours: first ``p, p + 1`` for ``p < S - 1`` (horizontal; the
+    numbers ``p`` at the end of a row are not pairs), then ``q, q + Gw`` for
+    ``q = p - (S - 1) < S - Gw`` (vertical)."""
+    horiz = pair < S - 1
+    a = jnp.where(horiz, pair, pair - (S - 1))
     return a, a + jnp.where(horiz, 1, Gw), horiz
 
 
@@ -156,17 +156,21 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     # occluder at any level), packed at the front: a few per cent of the pairs
     # (those that straddle an edge). One pass over the grid's records; the rest of
     # the pairing runs on at most Kp packed pairs, not on every pair of the grid.
-    differ_h = jnp.zeros((Gh, Gw - 1), bool)
-    differ_v = jnp.zeros((Gh - 1, Gw), bool)
+    # On the flat grid (rows of samples, one after the other): each sample against
+    # the next (horizontal pairs, but for a row's last sample) and against the one a
+    # row below (vertical pairs).
+    differ_h = jnp.zeros((S - 1,), bool)
+    differ_v = jnp.zeros((S - Gw,), bool)
     for x in (R.hit, R.refr, R.first, R.last):
-        g = x.reshape((-1, Gh, Gw))
+        g = x.reshape((-1, S))
         for r in range(g.shape[0]):
-            differ_h = differ_h | (g[r, :, :-1] != g[r, :, 1:])
-            differ_v = differ_v | (g[r, :-1, :] != g[r, 1:, :])
-    differ = jnp.concatenate([differ_h.reshape(-1), differ_v.reshape(-1)])
+            differ_h = differ_h | (g[r, :-1] != g[r, 1:])
+            differ_v = differ_v | (g[r, :-Gw] != g[r, Gw:])
+    differ_h = differ_h & (jnp.arange(S - 1, dtype=jnp.int32) % Gw != Gw - 1)
+    differ = jnp.concatenate([differ_h, differ_v])
     Kp = min(K, npairs)
     cand, _, n_differ = pack_map(differ, Kp, dtype=jnp.int32)  # pair numbers (_pair_samples' order)
-    ca, cb, ch = _pair_samples(cand, Gw, Gh)
+    ca, cb, ch = _pair_samples(cand, S, Gw)
     valid = jnp.arange(Kp, dtype=jnp.int32) < n_differ
 
     def sides(x):  # (..., S) -> (..., Kp) at the first and at the second sample of each pair
@@ -677,7 +681,12 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     quad = None
     if "qx" in res:
         live_q = jnp.any(res["qw"] != 0, 0)
-        order = jnp.argsort(~live_q, stable=True)
+        # The crossings with a quadrature first, each group in its order (a stable
+        # argsort of ~live_q, as a prefix count and a scatter).
+        r = prefix_count(live_q)
+        ar = jnp.arange(live_q.shape[0], dtype=jnp.int32)
+        pos = jnp.where(live_q, r - 1, r[-1] + ar - r)
+        order = jnp.zeros_like(ar).at[pos].set(ar, unique_indices=True)
         quad = {
             "xy": jnp.moveaxis(res["qx"][:, :, order], 1, 2),  # (2, K, Q)
             "w": res["qw"][:, order].T,  # (K, Q)
