@@ -7,7 +7,8 @@ of more than 32 elements into 32-wide reduce-windows, which LLVM turns into up t
 0.016 s), and ``jnp.nonzero`` with a ``size`` compiles in 0.17 s. The versions
 here give the same values (tests/test_masks.py) and compile in 0.01-0.07 s: bytes
 or float32 reduced by the YNNPACK library (which XLA calls from :data:`YNN_MIN`
-elements on), and one prefix sum and scatter for the indices.
+elements on), small masks (up to :data:`SMALL_MAX` elements) in rows of 32 bytes or
+integers, and one prefix sum and scatter for the indices.
 """
 
 from __future__ import annotations
@@ -59,9 +60,9 @@ def any_true(x, axis=None) -> jax.Array:
     """``jnp.any(x, axis)``, compiled cheaply: XLA:CPU rewrites a boolean reduction
     of more than 32 elements into 32-wide windows of ``i1`` vectors (up to 195 KB of
     LLVM IR each, 0.13 s to compile at 4096 elements), and a render holds dozens. A
-    whole-array reduction is the maximum of the bytes, padded with zeros to
-    :data:`YNN_MIN` elements (XLA then calls YNNPACK: 0.01 s); one along ``axis``
-    is the bytes' maximum."""
+    whole-array reduction is the maximum of the bytes: in rows of 32 up to
+    :data:`SMALL_MAX` elements, else padded with zeros to :data:`YNN_MIN` elements
+    (XLA then calls YNNPACK: 0.01 s); one along ``axis`` is the bytes' maximum."""
     b = jnp.asarray(x).astype(jnp.uint8)
     if axis is None:
         b = b.reshape(-1)
@@ -73,9 +74,10 @@ def any_true(x, axis=None) -> jax.Array:
 
 def count_true(x, dtype=None) -> jax.Array:
     """``jnp.sum(x)`` of a boolean array (in ``dtype``; default: jax's default integer,
-    as ``jnp.sum`` gives), compiled as :func:`any_true` is: a float32 sum (exact below
-    2^24 elements), which XLA:CPU hands to YNNPACK from :data:`YNN_MIN` elements on,
-    where an integer sum is emitted as 32-wide windows."""
+    as ``jnp.sum`` gives), compiled as :func:`any_true` is: up to :data:`SMALL_MAX`
+    elements an integer sum in rows of 32, beyond a float32 sum (exact below 2^24
+    elements), which XLA:CPU hands to YNNPACK from :data:`YNN_MIN` elements on, where
+    an integer sum is emitted as 32-wide windows."""
     b = jnp.asarray(x).reshape(-1)
     dtype = _default_int() if dtype is None else dtype
     if b.shape[0] >= 2**24 or b.shape[0] <= 32:

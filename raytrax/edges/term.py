@@ -480,8 +480,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             step ``j % END_STEPS`` on batch ``j // END_STEPS`` (``j = i - n0 - nfull``) of
             the sides that still need it. The state
             of every side is two arrays, ``(2, 2E)`` floats (the bracket ``lo, hi``)
-            and ``(3 + 2 nr, 2E)`` integers (``full``, ``lost``, the feature, and the
-            packed records beside the edge point on the minus and the plus side),
+            and ``(2E, 3 + 2 nr)`` integers (per side, ``full``, ``lost``, the feature, and
+            the packed records beside the edge point on the minus and the plus side: a
+            side's integers are one row, so that a batch is read and written as rows),
             each read and written as one gather and one scatter."""
             fl, it, order, cnt = st
             first = i < n0 + nfull
@@ -493,7 +494,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 # After step 1 (which alone writes ``full`` and ``lost``): the sides whose
                 # piece ends inside its strip, packed. A crossing that adds nothing
                 # needs no piece.
-                full_s, lost_s, _, _, _ = rows(it)
+                full_s, lost_s, _, _, _ = rows(it.T)
                 need = ~((full_s != 0) | (lost_s != 0)) & okd
                 src, _, cnt = pack_map(need, 2 * E)
                 return src, cnt.astype(src.dtype)
@@ -506,7 +507,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             def run(st):
                 fl, it = st
                 sd = jax.tree_util.tree_map(lambda v: v[..., idx], side)
-                col_f, col_i = fl[:, idx], it[:, idx]
+                col_f, col_i = fl[:, idx], it[idx].T
                 lo_i, hi_i = col_f[0], col_f[1]
                 full_i, lost_i, feat_i, old_m, old_p = rows(col_i)
                 mid = jnp.where(step == 0, 0.0, jnp.where(step == 1, hi_i, 0.5 * (lo_i + hi_i)))
@@ -536,8 +537,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 # keeps its own bracket).
                 wi = jnp.where(valid, idx, 2 * E)
                 wi2 = jnp.concatenate([wi, jnp.where(valid & s0, idx + E, 2 * E)])
-                return fl.at[:, wi].set(new_f, mode="drop"), it.at[:, wi2].set(
-                    jnp.concatenate([new_i, new_i], 1), mode="drop"
+                return fl.at[:, wi].set(new_f, mode="drop"), it.at[wi2].set(
+                    jnp.concatenate([new_i, new_i], 1).T, mode="drop"
                 )
 
             fl, it = jax.lax.cond(any_true(valid), run, lambda st: st, (fl, it))
@@ -550,13 +551,13 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
                 item,
                 (
                     jnp.stack([jnp.zeros_like(sided), sided]),
-                    jnp.zeros((3 + 2 * nr, 2 * E), jnp.int32),
+                    jnp.zeros((2 * E, 3 + 2 * nr), jnp.int32),
                     jnp.zeros((2 * E,), int),  # jax's default integer, as pack_map's src
                     jnp.zeros((), int),
                 ),
             )
         lo, hi = fl[0], fl[1]
-        full_s, lost_s, _, pk_m, pk_p = rows(it)
+        full_s, lost_s, _, pk_m, pk_p = rows(it.T)
         full, lost = full_s != 0, lost_s != 0
         r_m, r_p = unpack_records(pk_m[:, :E], D, L), unpack_records(pk_p[:, :E], D, L)
         lvl = c["level"]
