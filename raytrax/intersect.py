@@ -98,9 +98,8 @@ def prepare(scene) -> list[Kind]:
                     part.tfun,
                     part.hit,
                     part.crossings,
-                    None,
-                    spec,
-                    part.curvature,
+                    spec=spec,
+                    curvature=part.curvature,
                 )
             )
     return kinds

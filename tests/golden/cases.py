@@ -17,6 +17,7 @@ import pathlib
 import jax
 import jax.numpy as jnp
 import numpy as np
+from helpers import jit_grad
 
 import raytrax as rt
 from raytrax.testing import smooth_weights
@@ -63,7 +64,7 @@ def gradient_case(name, edge):
     # Plain AD as one jitted program (an eager jax.grad compiles its forward and backward
     # halves apart: 14 s against 17 s for edge_occluders); edge mode eagerly (its three
     # programs compile apart, which costs less than one).
-    grad = jax.grad(loss) if edge else jax.jit(jax.grad(loss), compiler_options=rt.compiler_options())
+    grad = jax.grad(loss) if edge else jit_grad(loss)
     g = grad(rt.parameters(scene))
     return {k: np.asarray(v) for k, v in g.items()}
 
