@@ -6,7 +6,13 @@ blocks of primitives (struct-of-arrays, ``(rays, block)`` tiles, a
 then a differentiable recomputation against the one primitive each ray hit.
 The merged triangle list of a scene with a BVH (``scene.bvh``, more than
 ``bvh.MIN_TRIANGLES`` triangles) is searched through it instead (:mod:`raytrax.bvh`),
-with the same results.
+with the same results. A kind of more than :data:`CULL_MIN` spheres, boxes, quads or
+disks is searched in groups of :data:`GROUP` primitives, compact in space (a Morton
+order of their bounding boxes' centres, computed in the traced function, so that it
+follows primitives that move during a fit): each batch of rays tests every group's
+box first and skips the groups none of its rays meets. Same primitive and, on ties,
+the same lower index as the brute-force search (distances may differ by rounding,
+about 1e-5 relative for spheres; the differentiable recomputation is the same).
 """
 
 from __future__ import annotations
@@ -26,6 +32,11 @@ from .branching import any_in_batch
 from .shapes.triangles import tri_hit, tri_soa, tri_t
 
 BLOCK = 128
+# Kinds of more than CULL_MIN primitives with world bounds (spheres, boxes, quads, disks)
+# are searched in groups of GROUP, compact in space; a batch of rays skips every group
+# whose bounding box none of its rays meets (crossover: benchmarks/README.md).
+CULL_MIN = 64
+GROUP = 16
 # Shadow rays test kinds of at most this many primitives one primitive at a time
 # (unrolled rows of rays, or'ed) rather than as a (rays, N) tile reduced over its
 # short minor axis, which XLA:CPU runs slowly; the compile cost grows with the count.
@@ -55,6 +66,7 @@ class Kind(NamedTuple):
     accel: B.Accel | None = None  # triangle BVH search arrays (see raytrax.bvh); None: brute force
     spec: S.KindSpec | None = None  # the registry entry; None for the merged triangle list
     curvature: jax.Array | None = None  # (N,) 1 / radius (differentiable); None: flat
+    groups: Groups | None = None  # spatial groups of the search (see _groups); None: no culling
 
 
 class Hit(NamedTuple):
@@ -71,11 +83,13 @@ def _ng(tree):
     return jax.tree_util.tree_map(jax.lax.stop_gradient, tree)
 
 
-def prepare(scene) -> list[Kind]:
+def prepare(scene, cull: bool = True) -> list[Kind]:
     """The kinds present in ``scene`` with their search arrays and hit functions, in
     registry order (:data:`raytrax.shapes.KINDS`). Called inside the traced render:
     triangle-family kinds (triangles, tetrahedra, meshes) are merged into one
-    triangle list, searched at the place of the first of them."""
+    triangle list, searched at the place of the first of them. ``cull=False``: no
+    kind is searched in culled groups (the edge finder, whose many searches would
+    each compile the groups' loop)."""
     kinds = []
     merged = False
     for spec in S.KINDS:
@@ -100,6 +114,7 @@ def prepare(scene) -> list[Kind]:
                     part.crossings,
                     spec=spec,
                     curvature=part.curvature,
+                    groups=_groups(_ng(part.soa), _ng(part.bounds)) if cull and _cull(part) else None,
                 )
             )
     return kinds
@@ -138,10 +153,114 @@ def _prim(soa, j: int):
     return {nm: v[j] for nm, v in soa.items()}
 
 
+class Groups(NamedTuple):
+    """A kind's primitives in groups of :data:`GROUP`, compact in space (Morton order of
+    their box centres; by index within a group), for the culled search: the search
+    arrays ``P[name] (ng, GROUP)``, ``valid (ng, GROUP)`` (False: padding), the
+    primitive index of each slot ``members (ng, GROUP)`` and each group's world box
+    ``lo, hi (3, ng)`` (slightly enlarged, so that rounding never drops a group)."""
+
+    P: jax.Array
+    valid: jax.Array
+    members: jax.Array
+    lo: jax.Array
+    hi: jax.Array
+
+
+def _cull(part) -> bool:
+    return part.bounds is not None and part.material.shape[0] > CULL_MIN
+
+
+def _groups(soa, bounds) -> Groups:
+    N = bounds.shape[2]
+    ng = math.ceil(N / GROUP)
+    pad = ng * GROUP - N
+    perm = jnp.pad(_spatial_order(bounds), (0, pad), mode="edge")
+    P = jnp.stack([v[perm].reshape(ng, GROUP) for v in soa.values()], 1)  # (ng, fields, GROUP), soa's order
+    valid = (jnp.arange(ng * GROUP) < N).reshape(ng, GROUP)
+    bd = bounds[:, :, perm].reshape(2, 3, ng, GROUP)
+    lo, hi = jnp.min(bd[0], -1), jnp.max(bd[1], -1)  # (3, ng)
+    scale = 1e-5 * (1.0 + jnp.max(jnp.abs(bd)))
+    return Groups(P, valid, perm.reshape(ng, GROUP), lo - scale, hi + scale)
+
+
+def _group_slabs(g: Groups, ray):
+    """Each ray's entry and exit distances of every group's box, ``(n, ng)``."""
+    tn, tf = -INF, INF
+    for i in range(3):
+        o, d = ray[i], ray[3 + i]
+        dd = jnp.where(jnp.abs(d) < 1e-30, 1e-30, d)  # a parallel ray: a huge, finite slope (no 0 * inf)
+        inv = (1.0 / dd)[:, None]
+        t1 = (g.lo[i][None, :] - o[:, None]) * inv
+        t2 = (g.hi[i][None, :] - o[:, None]) * inv
+        tn = jnp.maximum(tn, jnp.minimum(t1, t2))
+        tf = jnp.minimum(tf, jnp.maximum(t1, t2))
+    return tn, tf
+
+
+def _spread_bits(x):
+    """The low 10 bits of ``x`` (int32) spread to every third bit (a Morton code's axis)."""
+    x = x & 0x3FF
+    x = (x | (x << 16)) & 0x030000FF
+    x = (x | (x << 8)) & 0x0300F00F
+    x = (x | (x << 4)) & 0x030C30C3
+    return (x | (x << 2)) & 0x09249249
+
+
+def _spatial_order(bounds):
+    """Primitive indices ``(N,)`` ordered along a Morton curve of their box centres, so
+    that each run of :data:`GROUP` is compact in space; within each run, by index."""
+    c = 0.5 * (bounds[0] + bounds[1])  # (3, N)
+    lo, hi = jnp.min(c, 1, keepdims=True), jnp.max(c, 1, keepdims=True)
+    q = jnp.clip(jnp.floor((c - lo) / jnp.maximum(hi - lo, 1e-30) * 1023.0), 0, 1023).astype(jnp.int32)
+    code = _spread_bits(q[0]) | (_spread_bits(q[1]) << 1) | (_spread_bits(q[2]) << 2)
+    order = jnp.argsort(code, stable=True).astype(jnp.int32)
+    N = order.shape[0]
+    group = jnp.zeros((N,), jnp.int32).at[order].set(jnp.arange(N, dtype=jnp.int32) // GROUP)
+    return jnp.argsort(group, stable=True).astype(jnp.int32)  # by group, then by index
+
+
+def _any_column(mask):
+    """Per column of ``mask (n, ng)``: whether any entry is true (a matrix product)."""
+    ones = jnp.ones((1, mask.shape[0]), jnp.float32)
+    return jnp.dot(ones, mask.astype(jnp.float32), precision=_EXACT)[0] > 0
+
+
+def _closest_culled(k: Kind, g: Groups, ray, tmin):
+    """:func:`closest_kind` over the groups ``g`` of kind ``k``: a ``lax.scan`` over the
+    groups, each tested (a ``(rays, GROUP)`` tile) only if some ray meets its box."""
+    ray2 = tuple(r[:, None] for r in ray)
+    n = ray[0].shape[0]
+    tn, tf = _group_slabs(g, ray)
+    on = _any_column((tn <= tf) & (tf > tmin))
+
+    def body(carry, blk):
+        Pb, vb, b0, live = blk
+
+        def test(carry):
+            tb, ib = carry
+            T = k.tfun(ray2, {name: Pb[f][None, :] for f, name in enumerate(k.soa)}, tmin)
+            T = jax.lax.optimization_barrier(jnp.where(vb[None, :], T, INF).T)  # (GROUP, n), materialised
+            # Ties go to the lower index, as the brute-force argmin has it.
+            for j in range(GROUP):
+                tj = T[j]
+                better = (tj < tb) | ((tj == tb) & (b0[j] < ib))
+                tb, ib = jnp.where(better, tj, tb), jnp.where(better, b0[j], ib)
+            return tb, ib
+
+        return jax.lax.cond(live, test, lambda c: c, carry), None
+
+    init = (jnp.full((n,), INF, ray[0].dtype), jnp.zeros((n,), jnp.int32))
+    (tb, ib), _ = jax.lax.scan(body, init, (g.P, g.valid, g.members, on))
+    return tb, ib
+
+
 def closest_kind(k: Kind, ray, tmin):
     """Per ray: nearest distance (inf on a miss) and primitive index of one kind."""
     if k.accel is not None:
         return B.closest(k.accel, ray, tmin)
+    if k.groups is not None:
+        return _closest_culled(k, k.groups, ray, tmin)
     ray2 = tuple(r[:, None] for r in ray)
     N = k.material.shape[0]
     if N <= BLOCK:
@@ -265,6 +384,24 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
             continue
         onehot = jax.nn.one_hot(k.material, n_materials, dtype=o.dtype)
         N = k.material.shape[0]
+        if k.groups is not None:
+            g = k.groups
+            tn, tf = _group_slabs(g, ray)
+            on = _any_column((tn <= tf) & (tf > 0) & (tn < tmax))
+            oh = onehot[g.members] * g.valid[:, :, None].astype(o.dtype)
+
+            def gbody(c, blk):
+                Pb, vb, ohb, live = blk
+
+                def test(c):
+                    hit = _crossings(k, ray2, {nm: Pb[f][None, :] for f, nm in enumerate(k.soa)}, tmax)
+                    hit = jnp.where(vb[None, :], hit, 0.0)
+                    return c + jnp.dot(hit, ohb, precision=_EXACT)
+
+                return jax.lax.cond(live, test, lambda c: c, c), None
+
+            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, oh, on))
+            continue
         if N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
             for j in range(N):
                 hit = _crossings(k, ray, _prim(k.soa, j), tmax1)

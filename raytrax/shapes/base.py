@@ -80,7 +80,9 @@ class SearchPart(NamedTuple):
     kernel, the differentiable ``(idx, o, d, t0) -> (t, n, uv, rate)`` hit, the
     surface-crossing kernel of shadow rays (``None``: one crossing per hit), and each
     primitive's curvature ``(N,)`` (1 / radius, per world unit; ``None``: flat), which
-    widens the texture footprint of rays a curved mirror reflects."""
+    widens the texture footprint of rays a curved mirror reflects, and its world-space
+    bounding box ``bounds (2, 3, N)`` (lower, upper corner; ``None``: unbounded, never
+    culled), with which a kind of many primitives is searched in culled groups."""
 
     soa: dict
     material: jax.Array
@@ -88,6 +90,7 @@ class SearchPart(NamedTuple):
     hit: Callable
     crossings: Callable | None = None
     curvature: jax.Array | None = None
+    bounds: jax.Array | None = None
 
 
 class EdgePolygons(NamedTuple):

@@ -216,7 +216,10 @@ class BoxSpec(KindSpec):
             P = V.gather_rows(table, i)
             return box_hit(P[9:12], P[12:15], [P[0:3], P[3:6], P[6:9]], o, d, t0)
 
-        return SearchPart(box_soa(g), g.material, box_t, hit, box_crossings)
+        ext = jnp.einsum("nij,nj->ni", jnp.abs(R), h)  # half extent of the rotated box per world axis
+        return SearchPart(
+            box_soa(g), g.material, box_t, hit, box_crossings, bounds=jnp.stack([(c - ext).T, (c + ext).T])
+        )
 
     def edge_polygons(self, g):
         return quad_polygons(box_faces(g), jnp.repeat(g.material, 6))

@@ -182,7 +182,8 @@ class QuadSpec(KindSpec):
             c = g.corners[i]
             return quad_hit(c[:, 0].T, c[:, 1].T, c[:, 2].T, c[:, 3].T, o, d, t0)
 
-        return SearchPart(quad_soa(g), g.material, quad_t, hit)
+        c = g.corners
+        return SearchPart(quad_soa(g), g.material, quad_t, hit, bounds=jnp.stack([c.min(1).T, c.max(1).T]))
 
     def edge_polygons(self, g):
         return quad_polygons(g.corners, g.material)

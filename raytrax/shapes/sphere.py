@@ -100,4 +100,5 @@ class SphereSpec(KindSpec):
             lambda i, o, d, t0: sphere_hit(g.center[i].T, g.radius[i], o, d, t0),
             sphere_crossings,
             V.safe_div(1.0, jnp.abs(g.radius)),
+            jnp.stack([(g.center - jnp.abs(g.radius)[:, None]).T, (g.center + jnp.abs(g.radius)[:, None]).T]),
         )
