@@ -220,22 +220,16 @@ def _spatial_order(bounds):
     return jnp.argsort(group, stable=True).astype(jnp.int32)  # by group, then by index
 
 
-def _any_column(mask):
-    """Per column of ``mask (n, ng)``: whether any entry is true (a matrix product)."""
-    ones = jnp.ones((1, mask.shape[0]), jnp.float32)
-    return jnp.dot(ones, mask.astype(jnp.float32), precision=_EXACT)[0] > 0
-
-
 def _closest_culled(k: Kind, g: Groups, ray, tmin):
     """:func:`closest_kind` over the groups ``g`` of kind ``k``: a ``lax.scan`` over the
     groups, each tested (a ``(rays, GROUP)`` tile) only if some ray meets its box."""
     ray2 = tuple(r[:, None] for r in ray)
     n = ray[0].shape[0]
     tn, tf = _group_slabs(g, ray)
-    on = _any_column((tn <= tf) & (tf > tmin))
+    meets = ((tn <= tf) & (tf > tmin)).T  # (ng, n)
 
     def body(carry, blk):
-        Pb, vb, b0, live = blk
+        Pb, vb, b0, m = blk
 
         def test(carry):
             tb, ib = carry
@@ -248,10 +242,10 @@ def _closest_culled(k: Kind, g: Groups, ray, tmin):
                 tb, ib = jnp.where(better, tj, tb), jnp.where(better, b0[j], ib)
             return tb, ib
 
-        return jax.lax.cond(live, test, lambda c: c, carry), None
+        return jax.lax.cond(any_in_batch(m), test, lambda c: c, carry), None
 
     init = (jnp.full((n,), INF, ray[0].dtype), jnp.zeros((n,), jnp.int32))
-    (tb, ib), _ = jax.lax.scan(body, init, (g.P, g.valid, g.members, on))
+    (tb, ib), _ = jax.lax.scan(body, init, (g.P, g.valid, g.members, meets))
     return tb, ib
 
 
@@ -387,20 +381,20 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
         if k.groups is not None:
             g = k.groups
             tn, tf = _group_slabs(g, ray)
-            on = _any_column((tn <= tf) & (tf > 0) & (tn < tmax))
+            meets = ((tn <= tf) & (tf > 0) & (tn < tmax)).T  # (ng, n)
             oh = onehot[g.members] * g.valid[:, :, None].astype(o.dtype)
 
             def gbody(c, blk):
-                Pb, vb, ohb, live = blk
+                Pb, vb, ohb, m = blk
 
                 def test(c):
                     hit = _crossings(k, ray2, {nm: Pb[f][None, :] for f, nm in enumerate(k.soa)}, tmax)
                     hit = jnp.where(vb[None, :], hit, 0.0)
                     return c + jnp.dot(hit, ohb, precision=_EXACT)
 
-                return jax.lax.cond(live, test, lambda c: c, c), None
+                return jax.lax.cond(any_in_batch(m), test, lambda c: c, c), None
 
-            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, oh, on))
+            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, oh, meets))
             continue
         if N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
             for j in range(N):

@@ -16,7 +16,7 @@ def _scene(n=90, seed=0, width=12, height=9):
     """More than CULL_MIN of every bounded kind, in random order: spheres, rotated boxes,
     a 10 x 9 checker of boxes sharing faces (ties between neighbours), quads and disks."""
     rng = np.random.default_rng(seed)
-    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=2)
+    b = rt.SceneBuilder("physical", width=width, height=height, spp=1, max_depth=1)
     b.camera(position=(0.5, 3.0, 6.0), look_at=(0, 0, 0), fov=50)
     b.light((2.0, 5.0, 3.0), intensity=(30.0, 30.0, 30.0))
     b.material("a", color=(0.8, 0.5, 0.2))
@@ -126,3 +126,20 @@ def test_render_and_gradient_equal_the_brute_force_ones(monkeypatch):
     np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(want[0]))
     np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(want[1]))
     assert np.all(np.isfinite(np.asarray(got[1]))) and np.any(np.asarray(got[1]) != 0)
+
+
+def test_vmap_over_lights_equals_a_loop():
+    """Under ``jax.vmap`` over light positions the shadow rays are batched; a group is
+    still skipped only when no ray of any batch member meets its box."""
+    s = _scene(width=8, height=6)
+    name = "light[0].position"
+    p = rt.parameters(s)[name]
+    ps = p[None] + jnp.asarray([[0.0, 0.0, 0.0], [-2.0, 1.0, 0.5], [1.5, -0.5, 2.0]], p.dtype)
+
+    def render(x):
+        return rt.render(rt.with_parameters(s, {name: x}))
+
+    batch = np.asarray(jax.vmap(render)(ps))
+    for b, x in zip(batch, ps):
+        np.testing.assert_allclose(b, np.asarray(render(x)), rtol=1e-6, atol=1e-7)
+    assert np.ptp(batch, axis=0).max() > 1e-3  # the lights' moves change the image
