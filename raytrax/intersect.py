@@ -156,7 +156,8 @@ def _prim(soa, j: int):
 class Groups(NamedTuple):
     """A kind's primitives in groups of :data:`GROUP`, compact in space (Morton order of
     their box centres; by index within a group), for the culled search: the search
-    arrays ``P[name] (ng, GROUP)``, ``valid (ng, GROUP)`` (False: padding), the
+    arrays ``P (ng, fields, GROUP)`` (the fields in the order of the kind's ``soa``),
+    ``valid (ng, GROUP)`` (False: padding), the
     primitive index of each slot ``members (ng, GROUP)`` and each group's world box
     ``lo, hi (3, ng)`` (slightly enlarged, so that rounding never drops a group)."""
 

@@ -88,6 +88,7 @@ class DiskSpec(KindSpec):
             g.material,
             disk_t,
             lambda i, o, d, t0: disk_hit(g.center[i].T, g.normal[i].T, g.radius[i], o, d, t0),
+            # The box of the disk's sphere: loose for a disk seen edge-on, never too small.
             bounds=jnp.stack([(g.center - jnp.abs(g.radius)[:, None]).T, (g.center + jnp.abs(g.radius)[:, None]).T]),
         )
 
