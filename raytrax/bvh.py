@@ -159,8 +159,10 @@ def prepare(bvh: TriangleBVH, soa: dict) -> Accel:
     return Accel(tri, bvh.order.reshape(nl, LEAF), box)
 
 
-def _slab(ray2, box):
-    """Entry and exit distances ``(n, L)`` of rays ``(n, 1)`` through leaf boxes ``(1, L)``."""
+def slab(ray2, box):
+    """Entry and exit distances ``(n, L)`` of rays ``(n, 1)`` (the six components) through
+    axis-aligned boxes ``(1, L)`` (``box["lox"] ... box["hiz"]``); a ray parallel to a
+    slab gets a huge, finite slope of its sign (no ``0 * inf``)."""
     tn, tf = None, None
     for i, c in enumerate("xyz"):
         o, d = ray2[i], ray2[3 + i]
@@ -171,6 +173,7 @@ def _slab(ray2, box):
         lo, hi = jnp.minimum(t1, t2), jnp.maximum(t1, t2)
         tn = lo if tn is None else jnp.maximum(tn, lo)
         tf = hi if tf is None else jnp.minimum(tf, hi)
+    assert tn is not None and tf is not None
     return tn, tf
 
 
@@ -236,7 +239,7 @@ def closest(acc: Accel, ray, tmin):
     """Per ray: nearest triangle distance (inf on a miss) and its merged-list index,
     equal to the brute-force search."""
     ray2 = tuple(r[:, None] for r in ray)
-    tn, tf = _slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
+    tn, tf = slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
     keys = jnp.where((tn <= tf) & (tf > tmin), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype
@@ -259,7 +262,7 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
     """Per shadow ray: surfaces of each material crossed on ``(0, tmax)``, ``(n, M)``,
     equal to the brute-force count. ``material (N,)`` of the merged list; ``tmax (n, 1)``."""
     ray2 = tuple(r[:, None] for r in ray)
-    tn, tf = _slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
+    tn, tf = slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
     keys = jnp.where((tn <= tf) & (tf > 0) & (tn < tmax), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype

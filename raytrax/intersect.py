@@ -159,13 +159,13 @@ class Groups(NamedTuple):
     arrays ``P (ng, fields, GROUP)`` (the fields in the order of the kind's ``soa``),
     ``valid (ng, GROUP)`` (False: padding), the
     primitive index of each slot ``members (ng, GROUP)`` and each group's world box
-    ``lo, hi (3, ng)`` (slightly enlarged, so that rounding never drops a group)."""
+    ``box`` (``(ng,)`` arrays ``lox ... hiz`` as :func:`raytrax.bvh.slab` takes them;
+    slightly enlarged, so that rounding never drops a group)."""
 
     P: jax.Array
     valid: jax.Array
     members: jax.Array
-    lo: jax.Array
-    hi: jax.Array
+    box: dict
 
 
 def _cull(part) -> bool:
@@ -182,21 +182,21 @@ def _groups(soa, bounds) -> Groups:
     bd = bounds[:, :, perm].reshape(2, 3, ng, GROUP)
     lo, hi = jnp.min(bd[0], -1), jnp.max(bd[1], -1)  # (3, ng)
     scale = 1e-5 * (1.0 + jnp.max(jnp.abs(bd)))
-    return Groups(P, valid, perm.reshape(ng, GROUP), lo - scale, hi + scale)
+    box = {f"lo{c}": lo[i] - scale for i, c in enumerate("xyz")} | {
+        f"hi{c}": hi[i] + scale for i, c in enumerate("xyz")
+    }
+    return Groups(P, valid, perm.reshape(ng, GROUP), box)
 
 
-def _group_slabs(g: Groups, ray):
+def _group_slabs(g: Groups, ray2):
     """Each ray's entry and exit distances of every group's box, ``(n, ng)``."""
-    tn, tf = -INF, INF
-    for i in range(3):
-        o, d = ray[i], ray[3 + i]
-        dd = jnp.where(jnp.abs(d) < 1e-30, 1e-30, d)  # a parallel ray: a huge, finite slope (no 0 * inf)
-        inv = (1.0 / dd)[:, None]
-        t1 = (g.lo[i][None, :] - o[:, None]) * inv
-        t2 = (g.hi[i][None, :] - o[:, None]) * inv
-        tn = jnp.maximum(tn, jnp.minimum(t1, t2))
-        tf = jnp.minimum(tf, jnp.maximum(t1, t2))
-    return tn, tf
+    return B.slab(ray2, {k: v[None, :] for k, v in g.box.items()})
+
+
+def _fields(k: Kind, Pb):
+    """One group's search arrays ``Pb (fields, GROUP)`` as the kind's ``soa`` dict of
+    ``(1, GROUP)`` rows, as its distance and crossing kernels take them."""
+    return {name: Pb[f][None, :] for f, name in enumerate(k.soa)}
 
 
 def _spread_bits(x):
@@ -226,7 +226,7 @@ def _closest_culled(k: Kind, g: Groups, ray, tmin):
     groups, each tested (a ``(rays, GROUP)`` tile) only if some ray meets its box."""
     ray2 = tuple(r[:, None] for r in ray)
     n = ray[0].shape[0]
-    tn, tf = _group_slabs(g, ray)
+    tn, tf = _group_slabs(g, ray2)
     meets = ((tn <= tf) & (tf > tmin)).T  # (ng, n)
 
     def body(carry, blk):
@@ -234,7 +234,7 @@ def _closest_culled(k: Kind, g: Groups, ray, tmin):
 
         def test(carry):
             tb, ib = carry
-            T = k.tfun(ray2, {name: Pb[f][None, :] for f, name in enumerate(k.soa)}, tmin)
+            T = k.tfun(ray2, _fields(k, Pb), tmin)
             T = jax.lax.optimization_barrier(jnp.where(vb[None, :], T, INF).T)  # (GROUP, n), materialised
             # Ties go to the lower index, as the brute-force argmin has it.
             for j in range(GROUP):
@@ -363,6 +363,16 @@ def _crossings(k: Kind, ray2, P, tmax):
     return (k.tfun(ray2, P, 0.0) < tmax).astype(ray2[0].dtype)
 
 
+def _add_block(k: Kind, ray2, P, valid, onehot, tmax, counts):
+    """``counts (n, M)`` plus the surface crossings of the rays ``ray2`` (``(n, 1)``
+    rows) with a block of primitives ``P`` (``(1, B)`` rows; ``valid (B,)``: False for
+    padding, ``None``: all real), counted per material by ``onehot (B, M)``."""
+    hit = _crossings(k, ray2, P, tmax)
+    if valid is not None:
+        hit = jnp.where(valid[None, :], hit, 0.0)
+    return counts + jnp.dot(hit, onehot, precision=_EXACT)
+
+
 def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
     """For shadow rays ``o, d (3, n)`` and segment lengths ``tmax (n,)``: how many
     surfaces of each material the open segment ``(0, tmax)`` crosses, ``(n, M)``
@@ -381,42 +391,31 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
         N = k.material.shape[0]
         if k.groups is not None:
             g = k.groups
-            tn, tf = _group_slabs(g, ray)
+            tn, tf = _group_slabs(g, ray2)
             meets = ((tn <= tf) & (tf > 0) & (tn < tmax)).T  # (ng, n)
-            oh = onehot[g.members] * g.valid[:, :, None].astype(o.dtype)
 
             def gbody(c, blk):
                 Pb, vb, ohb, m = blk
+                add = lambda c: _add_block(k, ray2, _fields(k, Pb), vb, ohb, tmax, c)  # noqa: E731
+                return jax.lax.cond(any_in_batch(m), add, lambda c: c, c), None
 
-                def test(c):
-                    hit = _crossings(k, ray2, {nm: Pb[f][None, :] for f, nm in enumerate(k.soa)}, tmax)
-                    hit = jnp.where(vb[None, :], hit, 0.0)
-                    return c + jnp.dot(hit, ohb, precision=_EXACT)
-
-                return jax.lax.cond(any_in_batch(m), test, lambda c: c, c), None
-
-            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, oh, meets))
-            continue
-        if N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
+            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, onehot[g.members], meets))
+        elif N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
             for j in range(N):
                 hit = _crossings(k, ray, _prim(k.soa, j), tmax1)
                 counts = counts + hit[:, None] * onehot[j][None, :]
         elif N <= BLOCK:
             # Summed by a matrix product: XLA:CPU runs a reduction of this (rays, N)
             # tile (a max or a sum over N) 5-7x slower than the product.
-            hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, tmax)
-            counts = counts + jnp.dot(hit, onehot, precision=_EXACT)
+            counts = _add_block(k, ray2, {nm: v[None, :] for nm, v in k.soa.items()}, None, onehot, tmax, counts)
         else:
             P, valid, _ = _blocks(k.soa)
             nb = valid.shape[0]
-            pad = nb * BLOCK - N
-            oh = jnp.pad(onehot, ((0, pad), (0, 0))).reshape(nb, BLOCK, n_materials)
+            oh = jnp.pad(onehot, ((0, nb * BLOCK - N), (0, 0))).reshape(nb, BLOCK, n_materials)
 
             def body(c, blk):
                 Pb, vb, ohb = blk
-                hit = _crossings(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, tmax)
-                hit = jnp.where(vb[None, :], hit, 0.0)
-                return c + jnp.dot(hit, ohb, precision=_EXACT), None
+                return _add_block(k, ray2, {nm: v[None, :] for nm, v in Pb.items()}, vb, ohb, tmax, c), None
 
             counts, _ = jax.lax.scan(body, counts, (P, valid, oh))
     return jax.lax.stop_gradient(counts)

@@ -93,6 +93,13 @@ class SearchPart(NamedTuple):
     bounds: jax.Array | None = None
 
 
+def ball_bounds(center, radius):
+    """``SearchPart.bounds`` ``(2, 3, N)`` of balls of ``center (N, 3)`` and ``radius
+    (N,)``: the box of a sphere, and a safe (loose) one for a disk of that radius."""
+    r = jnp.abs(radius)[:, None]
+    return jnp.stack([(center - r).T, (center + r).T])
+
+
 class EdgePolygons(NamedTuple):
     """A kind's primitives as convex planar polygons for :mod:`raytrax.edges`, ``P``
     polygons of at most 4 edges: a point of the plane ``pp (P, 3)``, the unit normal

@@ -10,7 +10,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .. import vec as V
-from .base import INF, EdgePolygons, Key, KindSpec, SearchPart, check_shape, tangent_frame, unit_rows
+from .base import INF, EdgePolygons, Key, KindSpec, SearchPart, ball_bounds, check_shape, tangent_frame, unit_rows
 
 
 class Disks(eqx.Module):
@@ -88,8 +88,7 @@ class DiskSpec(KindSpec):
             g.material,
             disk_t,
             lambda i, o, d, t0: disk_hit(g.center[i].T, g.normal[i].T, g.radius[i], o, d, t0),
-            # The box of the disk's sphere: loose for a disk seen edge-on, never too small.
-            bounds=jnp.stack([(g.center - jnp.abs(g.radius)[:, None]).T, (g.center + jnp.abs(g.radius)[:, None]).T]),
+            bounds=ball_bounds(g.center, g.radius),  # its sphere's box: loose, never too small
         )
 
     def edge_polygons(self, g):

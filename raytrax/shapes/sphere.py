@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .. import vec as V
-from .base import INF, Key, KindSpec, SearchPart, check_shape
+from .base import INF, Key, KindSpec, SearchPart, ball_bounds, check_shape
 
 
 class Spheres(eqx.Module):
@@ -100,5 +100,5 @@ class SphereSpec(KindSpec):
             lambda i, o, d, t0: sphere_hit(g.center[i].T, g.radius[i], o, d, t0),
             sphere_crossings,
             V.safe_div(1.0, jnp.abs(g.radius)),
-            jnp.stack([(g.center - jnp.abs(g.radius)[:, None]).T, (g.center + jnp.abs(g.radius)[:, None]).T]),
+            ball_bounds(g.center, g.radius),
         )
