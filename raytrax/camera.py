@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -51,18 +52,40 @@ def subpixel_offsets(spp: int, dtype):
     return jnp.stack([sx.ravel(), sy.ravel()], -1)
 
 
-def rays_through(camera: Camera, xy, width: int, height: int):
+class Frame(NamedTuple):
+    """What :func:`rays_through` needs of a camera for an image of a given aspect:
+    its ``position``, unit ``fwd``, ``right`` and ``up`` vectors (each ``(3,)``) and
+    the half extents ``half_w``, ``half_h`` (scalars) of the image plane at distance
+    1. Computed once per render (:func:`frame`), outside the loops that make rays:
+    reverse mode then keeps these few arrays, not every intermediate of the basis
+    per loop step."""
+
+    position: jax.Array
+    fwd: jax.Array
+    right: jax.Array
+    up: jax.Array
+    half_w: jax.Array
+    half_h: jax.Array
+
+
+def frame(camera: Camera, width: int, height: int) -> Frame:
+    """The :class:`Frame` of ``camera`` for an image of ``width x height`` pixels."""
+    half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
+    fwd, right, up = camera.basis()
+    return Frame(camera.position, fwd, right, up, half_h * (width / height), half_h)
+
+
+def rays_through(camera: Camera | Frame, xy, width: int, height: int):
     """Origins and unit directions ``(3, M)`` of the rays through continuous image
     positions ``xy (2, M)`` in pixels (x to the right from the left edge, y down
-    from the top; pixel ``(row, col)`` covers ``[col, col + 1) x [row, row + 1)``)."""
+    from the top; pixel ``(row, col)`` covers ``[col, col + 1) x [row, row + 1)``).
+    ``camera``: a :class:`Camera`, or its :func:`frame` for this image size."""
+    f = frame(camera, width, height) if isinstance(camera, Camera) else camera
     x = xy[0] / width * 2.0 - 1.0
     y = 1.0 - xy[1] / height * 2.0
-    half_h = jnp.tan(jnp.deg2rad(camera.fov) * 0.5)
-    half_w = half_h * (width / height)
-    fwd, right, up = camera.basis()
-    d = fwd[:, None] + (x * half_w)[None] * right[:, None] + (y * half_h)[None] * up[:, None]
+    d = f.fwd[:, None] + (x * f.half_w)[None] * f.right[:, None] + (y * f.half_h)[None] * f.up[:, None]
     d = V.normalize(d)
-    return jnp.broadcast_to(camera.position[:, None], d.shape), d
+    return jnp.broadcast_to(f.position[:, None], d.shape), d
 
 
 def cone_spread(camera: Camera, height: int, n: int = 1):

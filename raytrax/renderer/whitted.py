@@ -30,7 +30,7 @@ from jax.ad_checkpoint import checkpoint_name
 
 from .. import vec as V
 from ..branching import any_in_batch
-from ..camera import rays_through
+from ..camera import frame, rays_through
 from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
 from ..materials import CHILD_FIELDS, SHADING_MODELS, facing, interface, material_rows, refract
@@ -201,10 +201,12 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
 
+    cam = frame(scene.camera, st.width, st.height)  # once, outside the loops
+
     def camera_rays(j):  # sub-tile j's camera rays (r, m) and sample ids (m,) (n: padding)
         start = j * m
         oc, dc = rays_through(
-            scene.camera, jax.lax.dynamic_slice(xy0, (jnp.zeros((), start.dtype), start), (2, m)), st.width, st.height
+            cam, jax.lax.dynamic_slice(xy0, (jnp.zeros((), start.dtype), start), (2, m)), st.width, st.height
         )
         cone = [jnp.zeros((1, m), dt), jnp.full((1, m), spread, dt)] if footprint else []
         rays = jnp.concatenate([oc, dc, jnp.ones_like(oc), *cone])
