@@ -56,9 +56,9 @@ class Frame(NamedTuple):
     """What :func:`rays_through` needs of a camera for an image of a given aspect:
     its ``position``, unit ``fwd``, ``right`` and ``up`` vectors (each ``(3,)``) and
     the half extents ``half_w``, ``half_h`` (scalars) of the image plane at distance
-    1. Computed once per render (:func:`frame`), outside the loops that make rays:
-    reverse mode then keeps these few arrays, not every intermediate of the basis
-    per loop step."""
+    1. The integrator computes it once per trace (:func:`frame`), outside its loops,
+    so that reverse mode keeps these few arrays rather than every intermediate of the
+    basis at each loop step."""
 
     position: jax.Array
     fwd: jax.Array
