@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import raytrax as rt
-from raytrax.camera import Camera, primary_rays
+from raytrax.camera import Camera, frame, primary_rays, rays_through
 
 F64 = jnp.float64
 
@@ -58,6 +58,21 @@ def test_centre_ray_is_forward_and_origins_at_camera():
     np.testing.assert_allclose(o, np.tile(POS, (W * H, 1)), atol=0)
     np.testing.assert_allclose(d[(H // 2) * W + W // 2], fwd, atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+
+
+def test_rays_from_a_frame_equal_rays_from_the_camera():
+    # The integrator computes the frame once per trace and makes its rays from it.
+    c = cam(POS, AT, UP, fov=50)
+    W, H = 9, 7
+    xy = jnp.asarray(np.random.default_rng(0).uniform(0, 7, (2, 40)))
+    o1, d1 = rays_through(c, xy, W, H)
+    o2, d2 = rays_through(frame(c, W, H), xy, W, H)
+    np.testing.assert_array_equal(np.asarray(o1), np.asarray(o2))
+    np.testing.assert_array_equal(np.asarray(d1), np.asarray(d2))
+    f = frame(c, W, H)
+    fwd, right, up = basis_np(POS, AT, UP)
+    np.testing.assert_allclose(np.stack([f.fwd, f.right, f.up]), np.stack([fwd, right, up]), atol=1e-12)
+    np.testing.assert_allclose(float(f.half_w) / float(f.half_h), W / H, rtol=1e-12)
 
 
 def test_row_zero_is_top_and_x_increases_to_the_right():
