@@ -16,6 +16,11 @@ fastest steady call of each, with their ratios:
   brute force either way; the grid's rays are culled).
 
     python benchmarks/bench_culling.py [--rounds 2] [--spheres 256,1024,4096] [--edge]
+    python benchmarks/bench_culling.py --against one-level --spheres 2048,4096,16384
+
+``--against one-level``: the baseline is the culled search on one level of groups
+(``raytrax.intersect.SUPER_MIN`` set past the group count), to measure the second
+level, which kinds of more than ``SUPER_MIN`` groups get.
 """
 
 from __future__ import annotations
@@ -49,7 +54,10 @@ def worker(cfg):
     import raytrax.intersect as I
 
     if not cfg["cull"]:
-        I.CULL_MIN = 10**9
+        if cfg.get("against") == "one-level":
+            I.SUPER_MIN = 10**9  # culled, on one level of groups only
+        else:
+            I.CULL_MIN = 10**9
     import jax
     import jax.numpy as jnp
 
@@ -94,27 +102,37 @@ def main():
     p.add_argument("--rounds", type=int, default=2, help="alternating pairs of processes per row")
     p.add_argument("--spheres", default="256,1024,4096", help="sphere counts ('' for none)")
     p.add_argument("--edge", action="store_true", help="also the edge-mode value_and_grad of the glass scene")
+    p.add_argument(
+        "--against",
+        choices=("brute", "one-level"),
+        default="brute",
+        help="the baseline: brute force, or the culled search on one level of groups (SUPER_MIN set past the count)",
+    )
     p.add_argument("--worker", help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.worker:
         print(json.dumps(worker(json.loads(a.worker))))
         return
     rows = [dict(scene="spheres", n=int(n)) for n in a.spheres.split(",") if n]
-    rows += [dict(scene="glass", mode=m) for m in ("forward", "value_and_grad") + (("edge",) if a.edge else ())]
+    if a.against == "brute":  # the glass scene's 100 boxes are one level of groups either way
+        rows += [dict(scene="glass", mode=m) for m in ("forward", "value_and_grad") + (("edge",) if a.edge else ())]
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=HERE).stdout
-    print(f"culled search against brute force, git {head.strip()}, {a.rounds} alternating pairs of processes per row")
-    print(f"{'row':28s} {'brute steady':>12s} {'culled':>8s} {'speed-up':>9s}   {'first call brute / culled':>26s}")
+    base = "brute" if a.against == "brute" else "1-level"
+    print(f"culled search against {a.against}, git {head.strip()}, {a.rounds} alternating pairs of processes per row")
+    print(
+        f"{'row':28s} {base + ' steady':>14s} {'culled':>8s} {'speed-up':>9s}   {'first call ' + base + ' / culled':>28s}"
+    )
     for row in rows:
         res = {True: [], False: []}
         for _ in range(a.rounds):
             for cull in (False, True):
-                res[cull].append(run(row | dict(cull=cull)))
+                res[cull].append(run(row | dict(cull=cull, against=a.against)))
         steady = {c: min(r["time"][1] for r in res[c]) for c in res}
         first = {c: sorted(r["time"][0] for r in res[c])[len(res[c]) // 2] for c in res}
         culled = [k for k, v in res[True][0]["kinds"].items() if v]
         name = f"spheres {row['n']}" if row["scene"] == "spheres" else f"glass {row['mode']}"
         print(
-            f"{name:28s} {steady[False]:10.4f} s {steady[True]:7.4f} s {steady[False] / steady[True]:8.2f}x"
+            f"{name:28s} {steady[False]:12.4f} s {steady[True]:7.4f} s {steady[False] / steady[True]:8.2f}x"
             f"   {first[False]:10.2f} / {first[True]:.2f} s   (culled: {', '.join(culled) or 'none'})",
             flush=True,
         )

@@ -10,7 +10,8 @@ with the same results. A kind of more than :data:`CULL_MIN` spheres, boxes, quad
 disks is searched in groups of :data:`GROUP` primitives, compact in space (a Morton
 order of their bounding boxes' centres, computed in the traced function, so that it
 follows primitives that move during a fit): each batch of rays tests every group's
-box first and skips the groups none of its rays meets. Same primitive and, on ties,
+box first and skips the groups none of its rays meets (past :data:`SUPER_MIN` groups,
+runs of :data:`SUPER` groups are tested and skipped the same way first). Same primitive and, on ties,
 the same lower index as the brute-force search (distances may differ by rounding,
 about 1e-5 relative for spheres; the differentiable recomputation is the same).
 """
@@ -37,6 +38,10 @@ BLOCK = 128
 # whose bounding box none of its rays meets (crossover: benchmarks/README.md).
 CULL_MIN = 64
 GROUP = 16
+# Kinds of more than SUPER_MIN groups are culled on two levels: groups of SUPER groups
+# first, then the groups inside those that a batch meets (crossover: benchmarks/README.md).
+SUPER_MIN = 64
+SUPER = 16
 # Shadow rays test kinds of at most this many primitives one primitive at a time
 # (unrolled rows of rays, or'ed) rather than as a (rays, N) tile reduced over its
 # short minor axis, which XLA:CPU runs slowly; the compile cost grows with the count.
@@ -160,12 +165,17 @@ class Groups(NamedTuple):
     ``valid (ng, GROUP)`` (False: padding), the
     primitive index of each slot ``members (ng, GROUP)`` and each group's world box
     ``box`` (``(ng,)`` arrays ``lox ... hiz`` as :func:`raytrax.bvh.slab` takes them;
-    slightly enlarged, so that rounding never drops a group)."""
+    slightly enlarged, so that rounding never drops a group). With more than
+    :data:`SUPER_MIN` groups, every array has a leading axis of runs of :data:`SUPER`
+    consecutive groups (``P (ns, SUPER, fields, GROUP)``, ``box`` of ``(ns, SUPER)``
+    arrays, the last run padded with empty groups) and ``top`` holds each run's box
+    (``(ns,)`` arrays); else ``top`` is None."""
 
     P: jax.Array
     valid: jax.Array
     members: jax.Array
     box: dict
+    top: dict | None = None
 
 
 def _cull(part) -> bool:
@@ -175,6 +185,9 @@ def _cull(part) -> bool:
 def _groups(soa, bounds) -> Groups:
     N = bounds.shape[2]
     ng = math.ceil(N / GROUP)
+    two = ng > SUPER_MIN
+    if two:
+        ng = math.ceil(ng / SUPER) * SUPER
     pad = ng * GROUP - N
     perm = jnp.pad(_spatial_order(bounds), (0, pad), mode="edge")
     P = jnp.stack([v[perm].reshape(ng, GROUP) for v in soa.values()], 1)  # (ng, fields, GROUP), soa's order
@@ -185,12 +198,47 @@ def _groups(soa, bounds) -> Groups:
     box = {f"lo{c}": lo[i] - scale for i, c in enumerate("xyz")} | {
         f"hi{c}": hi[i] + scale for i, c in enumerate("xyz")
     }
-    return Groups(P, valid, perm.reshape(ng, GROUP), box)
+    members = perm.reshape(ng, GROUP)
+    if not two:
+        return Groups(P, valid, members, box)
+    ns = ng // SUPER
+
+    def runs(x):
+        return x.reshape((ns, SUPER) + x.shape[1:])
+
+    box = {c: runs(v) for c, v in box.items()}
+    top = {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in box.items()}
+    return Groups(runs(P), runs(valid), runs(members), box, top)
 
 
-def _group_slabs(g: Groups, ray2):
-    """Each ray's entry and exit distances of every group's box, ``(n, ng)``."""
-    return B.slab(ray2, {k: v[None, :] for k, v in g.box.items()})
+def _over_groups(g: Groups, ray2, meets, step, carry, extra=None):
+    """``carry`` after ``step(carry, P, valid, members, extra)`` for every group
+    (its rows of ``g``'s arrays and of ``extra``, an array with the groups' leading axes,
+    or None) that some ray of ``ray2`` meets, in group order: a ``lax.scan`` over the
+    groups, each step under a ``lax.cond`` on whether any ray meets its box (with two
+    levels, a scan over the runs of groups first, skipping the runs none meets).
+    ``meets(tn, tf) -> (n, m)``: which rays meet boxes, from their entry and exit distances."""
+
+    def level(carry, P, valid, members, box, extra):
+        tn, tf = B.slab(ray2, {c: v[None, :] for c, v in box.items()})
+        m = meets(tn, tf).T  # (groups, n)
+
+        def body(c, blk):
+            *rows, mb = blk
+            return jax.lax.cond(any_in_batch(mb), lambda c: step(c, *rows), lambda c: c, c), None
+
+        return jax.lax.scan(body, carry, (P, valid, members, extra, m))[0]
+
+    if g.top is None:
+        return level(carry, g.P, g.valid, g.members, g.box, extra)
+    tn, tf = B.slab(ray2, {c: v[None, :] for c, v in g.top.items()})
+    m2 = meets(tn, tf).T  # (runs, n)
+
+    def outer(c, blk):
+        *rows, mb = blk
+        return jax.lax.cond(any_in_batch(mb), lambda c: level(c, *rows), lambda c: c, c), None
+
+    return jax.lax.scan(outer, carry, (g.P, g.valid, g.members, g.box, extra, m2))[0]
 
 
 def _fields(k: Kind, Pb):
@@ -226,28 +274,20 @@ def _closest_culled(k: Kind, g: Groups, ray, tmin):
     groups, each tested (a ``(rays, GROUP)`` tile) only if some ray meets its box."""
     ray2 = tuple(r[:, None] for r in ray)
     n = ray[0].shape[0]
-    tn, tf = _group_slabs(g, ray2)
-    meets = ((tn <= tf) & (tf > tmin)).T  # (ng, n)
 
-    def body(carry, blk):
-        Pb, vb, b0, m = blk
-
-        def test(carry):
-            tb, ib = carry
-            T = k.tfun(ray2, _fields(k, Pb), tmin)
-            T = jax.lax.optimization_barrier(jnp.where(vb[None, :], T, INF).T)  # (GROUP, n), materialised
-            # Ties go to the lower index, as the brute-force argmin has it.
-            for j in range(GROUP):
-                tj = T[j]
-                better = (tj < tb) | ((tj == tb) & (b0[j] < ib))
-                tb, ib = jnp.where(better, tj, tb), jnp.where(better, b0[j], ib)
-            return tb, ib
-
-        return jax.lax.cond(any_in_batch(m), test, lambda c: c, carry), None
+    def test(carry, Pb, vb, b0, _):
+        tb, ib = carry
+        T = k.tfun(ray2, _fields(k, Pb), tmin)
+        T = jax.lax.optimization_barrier(jnp.where(vb[None, :], T, INF).T)  # (GROUP, n), materialised
+        # Ties go to the lower index, as the brute-force argmin has it.
+        for j in range(GROUP):
+            tj = T[j]
+            better = (tj < tb) | ((tj == tb) & (b0[j] < ib))
+            tb, ib = jnp.where(better, tj, tb), jnp.where(better, b0[j], ib)
+        return tb, ib
 
     init = (jnp.full((n,), INF, ray[0].dtype), jnp.zeros((n,), jnp.int32))
-    (tb, ib), _ = jax.lax.scan(body, init, (g.P, g.valid, g.members, meets))
-    return tb, ib
+    return _over_groups(g, ray2, lambda tn, tf: (tn <= tf) & (tf > tmin), test, init)
 
 
 def closest_kind(k: Kind, ray, tmin):
@@ -391,15 +431,12 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
         N = k.material.shape[0]
         if k.groups is not None:
             g = k.groups
-            tn, tf = _group_slabs(g, ray2)
-            meets = ((tn <= tf) & (tf > 0) & (tn < tmax)).T  # (ng, n)
 
-            def gbody(c, blk):
-                Pb, vb, ohb, m = blk
-                add = lambda c: _add_block(k, ray2, _fields(k, Pb), vb, ohb, tmax, c)  # noqa: E731
-                return jax.lax.cond(any_in_batch(m), add, lambda c: c, c), None
+            def add(c, Pb, vb, _, ohb, k=k):
+                return _add_block(k, ray2, _fields(k, Pb), vb, ohb, tmax, c)
 
-            counts, _ = jax.lax.scan(gbody, counts, (g.P, g.valid, onehot[g.members], meets))
+            meets = lambda tn, tf: (tn <= tf) & (tf > 0) & (tn < tmax)  # noqa: E731
+            counts = _over_groups(g, ray2, meets, add, counts, onehot[g.members])
         elif N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
             for j in range(N):
                 hit = _crossings(k, ray, _prim(k.soa, j), tmax1)

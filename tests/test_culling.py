@@ -56,8 +56,7 @@ def _rays(n=2000, seed=1):
     return jnp.asarray(o.T, jnp.float32), jnp.asarray(d.T, jnp.float32)
 
 
-@jax.jit
-def _search(scene, o, d, tmax):
+def _search_fn(scene, o, d, tmax):
     culled, brute = I.prepare(scene), I.prepare(scene, cull=False)
     ray = (o[0], o[1], o[2], d[0], d[1], d[2])
     nm = scene.materials.color.shape[0]
@@ -70,11 +69,14 @@ def _search(scene, o, d, tmax):
     )
 
 
-def test_every_bounded_kind_is_culled_and_matches_brute_force():
+_search = jax.jit(_search_fn)
+
+
+def _check_against_brute_force(search):
     s = _scene()
     o, d = _rays()
     tmax = jnp.asarray(np.random.default_rng(2).uniform(0.1, 5.0, o.shape[1]), o.dtype)
-    got, want, c, cb, culled = _search(s, o, d, tmax)
+    got, want, c, cb, culled = search(s, o, d, tmax)
     names = [k.name for k in I.prepare(s)]
     assert dict(zip(names, culled)) == {"sphere": True, "box": True, "plane": False, "quad": True, "disk": True}
     for name, (t, i), (tb, ib) in zip(names, got, want):
@@ -88,6 +90,20 @@ def test_every_bounded_kind_is_culled_and_matches_brute_force():
         np.testing.assert_array_equal(i[hit], ib[hit], err_msg=name)  # ties: the lower index
     np.testing.assert_array_equal(np.asarray(c), np.asarray(cb))
     assert np.asarray(cb).sum() > 0
+
+
+def test_every_bounded_kind_is_culled_and_matches_brute_force():
+    _check_against_brute_force(_search)
+
+
+def test_two_levels_of_groups_match_brute_force(monkeypatch):
+    """Runs of groups culled first (every kind here has 6 to 8 groups: runs of 4,
+    the last one padded with empty groups)."""
+    monkeypatch.setattr(I, "SUPER_MIN", 2)
+    monkeypatch.setattr(I, "SUPER", 4)
+    s = _scene()
+    assert all(k.groups.top is not None for k in I.prepare(s) if k.groups is not None)
+    _check_against_brute_force(jax.jit(_search_fn))
 
 
 def test_below_the_threshold_nothing_is_culled():
