@@ -38,8 +38,8 @@ BLOCK = 128
 # whose bounding box none of its rays meets (crossover: benchmarks/README.md).
 CULL_MIN = 64
 GROUP = 16
-# Kinds of more than SUPER_MIN groups are culled on two levels: groups of SUPER groups
-# first, then the groups inside those that a batch meets (crossover: benchmarks/README.md).
+# Kinds of more than SUPER_MIN groups are culled on two levels: runs of SUPER consecutive
+# groups first, then the groups of the runs that a batch meets (benchmarks/README.md).
 SUPER_MIN = 64
 SUPER = 16
 # Shadow rays test kinds of at most this many primitives one primitive at a time
@@ -435,7 +435,9 @@ def occluder_counts(kinds: list[Kind], o, d, tmax, n_materials: int):
             def add(c, Pb, vb, _, ohb, k=k):
                 return _add_block(k, ray2, _fields(k, Pb), vb, ohb, tmax, c)
 
-            meets = lambda tn, tf: (tn <= tf) & (tf > 0) & (tn < tmax)  # noqa: E731
+            def meets(tn, tf):  # the segment (0, tmax) overlaps the box
+                return (tn <= tf) & (tf > 0) & (tn < tmax)
+
             counts = _over_groups(g, ray2, meets, add, counts, onehot[g.members])
         elif N <= UNROLL_SHADOW:  # one row per primitive, added into its material's column
             for j in range(N):
