@@ -6,23 +6,30 @@ Split of the work:
 
 * **Topology, on the host, once** (:func:`build_topology`, called by
   :meth:`raytrax.SceneBuilder.build`): the triangles are ordered by a recursive
-  median split of their centroids along the longest axis, cut so that every
-  leaf holds exactly :data:`LEAF` triangles (the last one is padded). The order
-  is stored in the scene as an integer array (:class:`TriangleBVH`), so the
+  split of their centroids along the longest axis, cut so that every leaf holds
+  exactly :data:`LEAF` triangles (the last one is padded) and every aligned run
+  of :data:`BRANCH` leaves (of ``BRANCH ** 2`` leaves, ...) is one subtree. The
+  order is stored in the scene as an integer array (:class:`TriangleBVH`), so the
   scene stays a pytree that ``jit``, ``grad``, ``vmap`` and
   :func:`raytrax.with_parameters` handle; integer leaves are not differentiated.
 * **Bounds, in the traced function, every render** (:func:`prepare`): the leaf
   boxes are refit from the current vertex positions (under ``stop_gradient``),
-  so the search stays exact when vertices or tetrahedron centres move during a
-  fit; only the quality of the grouping can degrade, never correctness.
-* **Traversal** (:func:`closest`, :func:`crossings`): every ray tests all leaf
-  boxes (struct-of-arrays slab test, ``(rays, leaves)``), then a
-  ``lax.while_loop`` visits, per ray, the leaf with the nearest entry distance
-  not yet visited, gathering that leaf's ``LEAF`` triangles (``(rays, LEAF)``
-  Moeller-Trumbore tile), until no ray has a leaf left that could hold a nearer
-  hit (closest hit) or that overlaps its segment (shadow crossings). Rays are
-  masked, not compacted, so a step costs ``rays x LEAF`` tests and the loop runs
-  as many steps as the busiest ray needs.
+  and the boxes of the inner levels from them (a node bounds ``BRANCH``
+  consecutive nodes of the level below; levels are added until at most
+  :data:`TOP_MAX` nodes remain), so the search stays exact when vertices or
+  tetrahedron centres move during a fit; only the quality of the grouping can
+  degrade, never correctness.
+* **Traversal** (:func:`closest`, :func:`crossings`): every ray tests the top
+  level's boxes (struct-of-arrays slab test, ``(rays, nodes)``), then one
+  ``lax.while_loop`` walks the tree per ray, depth first, nearest entry first
+  among a node's children: a step either tests the ray's next leaf (gathering its
+  ``LEAF`` triangles: a ``(rays, LEAF)`` Moeller-Trumbore tile) or opens its next
+  node (a ``(rays, BRANCH)`` slab test of the node's children), until no ray has
+  a node left that could hold a nearer hit (closest hit) or that overlaps its
+  segment (shadow crossings). Rays are masked, and compacted once few are left,
+  so the few rays that take many steps do not cost a full-width step each. A
+  step costs the same at 10^3 and 10^6 triangles; the number of steps grows
+  with the depth of the tree and the leaves a ray must test.
 
 The results equal the brute-force search: the same kernel (``shapes.tri_t``) on
 the same numbers, ties between equal distances broken towards the lower
@@ -46,9 +53,11 @@ from .shapes.base import check_shape
 from .shapes.triangles import tri_t
 
 LEAF = 32  # triangles per leaf
+BRANCH = 16  # children of an inner node (leaves, or inner nodes of the level below)
+TOP_MAX = 64  # nodes of the top level: inner levels are added until at most this many remain
 MIN_TRIANGLES = 64  # the BVH is used above this many triangles, brute force below (crossover: benchmarks/README.md)
 INF = float("inf")
-SHRINK = (8, 8)  # compaction factors of the traversal loop (see _visit)
+SHRINK = (8, 8)  # compaction factors of the traversal loop (see _compacting_loop)
 
 
 class TriangleBVH(eqx.Module):
@@ -72,10 +81,17 @@ class TriangleBVH(eqx.Module):
         return self.order.shape[0] // LEAF
 
 
-def build_topology(centroids, leaf: int | None = None):
+def build_topology(centroids, leaf: int | None = None, branch: int | None = None):
     """Host-side leaf order of triangles with ``centroids (N, 3)`` (numpy):
-    ``(order, pad)`` int32 arrays of length ``ceil(N / leaf) * leaf``."""
+    ``(order, pad)`` int32 arrays of length ``ceil(N / leaf) * leaf``.
+
+    A recursive split of the centroids along the longest axis, by count: a node of
+    ``m`` leaves sends whole units of ``u`` leaves to its left half (``u`` the largest
+    power of ``branch`` below ``m``; about half of them), so that every run of
+    ``branch ** k`` consecutive leaves that starts at a multiple of it is one subtree,
+    compact in space (the inner nodes of :func:`prepare`)."""
     leaf = LEAF if leaf is None else leaf
+    branch = BRANCH if branch is None else branch
     c = np.asarray(centroids, np.float64)
     N = c.shape[0]
     leaves = []
@@ -87,7 +103,11 @@ def build_topology(centroids, leaf: int | None = None):
             continue
         cc = c[ids]
         axis = int(np.argmax(np.ptp(cc, axis=0)))
-        left = (-(-ids.shape[0] // leaf) // 2) * leaf  # whole leaves on the left
+        m = -(-ids.shape[0] // leaf)  # leaves of this node
+        u = 1
+        while u * branch < m:
+            u *= branch
+        left = (-(-m // u) + 1) // 2 * u * leaf  # whole units on the left
         part = np.argpartition(cc[:, axis], left - 1, kind="introselect")
         stack.append(ids[part[left:]])  # popped after the left half: leaves stay in spatial order
         stack.append(ids[part[:left]])
@@ -117,11 +137,15 @@ def for_scene(scene) -> TriangleBVH | None:
 class Accel(NamedTuple):
     """Traced search arrays: triangle SoA ``(L, LEAF)`` in leaf order (padding
     slots have zero edges, so never hit), merged-list index ``(L, LEAF)`` of each
-    slot, leaf boxes ``(L,)`` per component."""
+    slot, leaf boxes ``(L,)`` per component, and the inner levels, lowest first:
+    ``levels[k]`` holds the boxes of the nodes of level ``k + 1`` (``(L_k+1,)`` per
+    component; node ``i`` of level ``k + 1`` bounds nodes ``i * BRANCH ...`` of level
+    ``k``, level 0 being the leaves). Empty when the rays test every leaf box."""
 
     tri: dict
     index: jax.Array
     box: dict
+    levels: tuple = ()
 
 
 def prepare(bvh: TriangleBVH, soa: dict) -> Accel:
@@ -156,20 +180,38 @@ def prepare(bvh: TriangleBVH, soa: dict) -> Accel:
         if k.startswith("e"):
             v = jnp.where(keep, v, jnp.zeros((), v.dtype))
         tri[k] = v.reshape(nl, LEAF)
-    return Accel(tri, bvh.order.reshape(nl, LEAF), box)
+    levels = []
+    cur, n = box, nl
+    while n > TOP_MAX:
+        up = -(-n // BRANCH)
+        rows = {c: jnp.pad(v, (0, up * BRANCH - n), mode="edge").reshape(up, BRANCH) for c, v in cur.items()}
+        cur = {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in rows.items()}
+        levels.append(cur)
+        n = up
+    return Accel(tri, bvh.order.reshape(nl, LEAF), box, tuple(levels))
 
 
-def slab(ray2, box):
+def inverse_directions(ray2):
+    """``1 / d`` per component of rays ``ray2`` (the six components), a direction
+    component of magnitude below 1e-30 replaced by +-1e-30 of its sign (a huge, finite
+    slope: no ``0 * inf`` in :func:`slab`)."""
+    out = []
+    for d in ray2[3:]:
+        tiny = jnp.asarray(1e-30, d.dtype)
+        out.append(1.0 / jnp.where(jnp.abs(d) < tiny, jnp.where(d < 0, -tiny, tiny), d))
+    return tuple(out)
+
+
+def slab(ray2, box, inv=None):
     """Entry and exit distances ``(n, L)`` of rays ``(n, 1)`` (the six components) through
-    axis-aligned boxes ``(1, L)`` (``box["lox"] ... box["hiz"]``); a ray parallel to a
-    slab gets a huge, finite slope of its sign (no ``0 * inf``)."""
+    axis-aligned boxes ``(1, L)`` or ``(n, L)`` (``box["lox"] ... box["hiz"]``);
+    ``inv``: the rays' :func:`inverse_directions`, computed here if None."""
+    inv = inverse_directions(ray2) if inv is None else inv
     tn, tf = None, None
     for i, c in enumerate("xyz"):
-        o, d = ray2[i], ray2[3 + i]
-        tiny = jnp.asarray(1e-30, d.dtype)
-        inv = 1.0 / jnp.where(jnp.abs(d) < tiny, jnp.where(d < 0, -tiny, tiny), d)
-        t1 = (box["lo" + c] - o) * inv
-        t2 = (box["hi" + c] - o) * inv
+        o = ray2[i]
+        t1 = (box["lo" + c] - o) * inv[i]
+        t2 = (box["hi" + c] - o) * inv[i]
         lo, hi = jnp.minimum(t1, t2), jnp.maximum(t1, t2)
         tn = lo if tn is None else jnp.maximum(tn, lo)
         tf = hi if tf is None else jnp.minimum(tf, hi)
@@ -186,67 +228,125 @@ def _take(tree, idx):
     return jax.tree_util.tree_map(lambda x: x[idx], tree)
 
 
-def _visit(keys, const, state, body, more, shrink=None):
-    """Visit, per ray, leaves in increasing ``keys (n, L)`` (inf: skip).
-
-    ``const``, ``state``: pytrees of per-ray arrays (leading axis ``n``);
-    ``body(leaf (n,), active (n,), const, state) -> state`` processes one leaf per
-    ray; ``more(key (n,), state) -> (n,) bool`` says whether a ray still wants its
-    next leaf (of entry ``key``). Rays are masked, and compacted: once at most
-    ``n / shrink[0]`` rays are still active, they are gathered into a buffer of
-    that size and the loop goes on there (and so on for the next factors), so
-    that the few rays that visit many leaves do not cost a full-width step each.
-    """
-    cols = jnp.arange(keys.shape[1], dtype=jnp.int32)[None, :]
+def _compacting_loop(state, const, active, step, shrink=None):
+    """``while any(active(state)): state = step(state, const)`` over per-ray pytrees
+    ``state`` and ``const`` (leading axis ``n``; ``active -> (n,) bool``). Rays are
+    masked, and compacted: once at most ``n / shrink[0]`` rays are still active, they
+    are gathered into a buffer of that size and the loop goes on there (and so on for
+    the next factors), so that the few rays that need many steps do not cost a
+    full-width step each."""
     shrink = SHRINK if shrink is None else shrink
 
-    def nxt(keys):
-        return V.min_argmin(keys)
-
-    def run(keys, const, state, level):
-        m = keys.shape[0]
+    def run(state, const, level):
+        m = jax.tree_util.tree_leaves(state)[0].shape[0]
         small = m // shrink[level] if level < len(shrink) else 0
         if small < 64:
             small = 0
-
-        def cond(c):
-            _, k, _, st = c
-            return count_true(more(k, st)) > small
-
-        def step(c):
-            keys, k, leaf, st = c
-            act = more(k, st)
-            st = body(leaf, act, const, st)
-            keys = jnp.where(cols == leaf[:, None], jnp.asarray(INF, keys.dtype), keys)
-            k, leaf = nxt(keys)
-            return keys, k, leaf, st
-
-        k, leaf = nxt(keys)
-        keys, k, leaf, state = jax.lax.while_loop(cond, step, (keys, k, leaf, state))
+        state = jax.lax.while_loop(lambda st: count_true(active(st)) > small, lambda st: step(st, const), state)
         if not small:
             return state
-        act = more(k, state)
-        idx = true_indices(act, small, m)
-        sub_keys = jnp.where((idx < m)[:, None], keys[jnp.minimum(idx, m - 1)], jnp.asarray(INF, keys.dtype))
+        idx = true_indices(active(state), small, m)
         safe = jnp.minimum(idx, m - 1)
-        sub = run(sub_keys, _take(const, safe), _take(state, safe), level + 1)
+        sub = run(_take(state, safe), _take(const, safe), level + 1)
         return jax.tree_util.tree_map(lambda full, part: full.at[idx].set(part, mode="drop"), state, sub)
 
-    return run(keys, const, state, 0)
+    return run(state, const, 0)
+
+
+def _traverse(acc: Accel, const, state, leaf_body, more, ok):
+    """Visit, per ray, the leaves whose boxes pass ``ok``, depth first down the levels
+    of ``acc``, nearest entry first among the children of a node. Each ray keeps, per
+    level, the entry distances of the children of the node it is in (inf: visited or
+    missed); a step either tests the leaf of least entry or, when that level has none
+    left that ``more`` wants, opens the next node of the lowest level that has one
+    (tests its ``BRANCH`` children's boxes). One loop for all levels
+    (:func:`_compacting_loop`). ``const = (ray2, extra)``: rays ``(n, 1)`` and what
+    ``ok(tn, tf, extra) -> bool`` and ``leaf_body`` use; ``leaf_body(leaf (n,), active
+    (n,), const, state) -> state``; ``more(key (n,), state)``: whether a ray still
+    wants a node of entry ``key``."""
+    ray2, extra = const
+    inv = inverse_directions(ray2)
+    boxes = (acc.box,) + tuple(acc.levels)  # boxes[k]: the nodes of level k (0: leaves)
+    top = len(boxes) - 1
+    n = ray2[0].shape[0]
+    tn, tf = slab(ray2, {k: v[None, :] for k, v in boxes[top].items()}, inv)
+    keys_top = jnp.where(ok(tn, tf, extra), tn, INF)
+    # The children of every inner node, in one table: row off[l] + i holds the boxes of
+    # the children of node i of level l (l = 1 ... top).
+    rows, valid, off = {c: [] for c in boxes[0]}, [], [0]
+    for level in range(1, top + 1):
+        nk, nup = boxes[level - 1]["lox"].shape[0], boxes[level]["lox"].shape[0]
+        for c, v in boxes[level - 1].items():
+            rows[c].append(jnp.pad(v, (0, nup * BRANCH - nk), mode="edge").reshape(nup, BRANCH))
+        valid.append((np.arange(nup * BRANCH) < nk).reshape(nup, BRANCH))
+        off.append(off[-1] + nup)
+    table = {c: jnp.concatenate(v) for c, v in rows.items()} if top else {}
+    table_valid = jnp.asarray(np.concatenate(valid) if top else np.zeros((0, BRANCH), bool))
+    kdt = keys_top.dtype
+    cols = jnp.arange(BRANCH, dtype=jnp.int32)[None, None, :]
+
+    def least(Kc, keys_top):
+        """Least key and its column per level: ``(n, top)`` of the open nodes' children, ``(n,)`` of the top."""
+        return V.min_argmin(Kc) + V.min_argmin(keys_top)
+
+    def wants(mins, st):
+        """Per level (0 ... top), whether ``more`` wants the least key."""
+        m, _, mt, _ = mins
+        return [more(m[:, level], st) for level in range(top)] + [more(mt, st)]
+
+    # The state of a ray: Kc (n, top, BRANCH), the keys of the children of the node open
+    # at each level l + 1 (inf: visited or missed), whose ids start at base (n, top);
+    # the top level's keys (n, T); their least keys (``least``); the caller's state.
+    def step(carry, const2):
+        const, inv = const2
+        Kc, keys_top, base, mins, st = carry
+        _, i, _, it = mins
+        w = keys_top.shape[0]
+        acts, lower = [], jnp.zeros((w,), bool)
+        for x in wants(mins, st):  # each ray acts at the lowest level that has a node it wants
+            acts.append(x & ~lower)
+            lower = lower | x
+        st = leaf_body(base[:, 0] + i[:, 0] if top else it, acts[0], const, st)
+        tcols = jnp.arange(keys_top.shape[1], dtype=jnp.int32)[None, :]
+        keys_top = jnp.where(acts[top][:, None] & (tcols == it[:, None]), INF, keys_top).astype(kdt)
+        if top:
+            A = jnp.stack(acts[:top], 1)  # (n, top)
+            Kc = jnp.where(A[:, :, None] & (cols == i[:, :, None]), INF, Kc).astype(kdt)
+            # Open the node: test its children's boxes, into the keys of the level below.
+            node = [base[:, level] + i[:, level] for level in range(top)] + [it]
+            row = jnp.zeros((w,), jnp.int32)
+            slot = jnp.full((w,), w * top, jnp.int32)  # out of range: dropped
+            for level in range(1, top + 1):
+                row = jnp.where(acts[level], off[level - 1] + node[level], row)
+                slot = jnp.where(acts[level], jnp.arange(w, dtype=jnp.int32) * top + (level - 1), slot)
+            tn, tf = slab(const[0], {c: v[row] for c, v in table.items()}, inv)  # (n, BRANCH)
+            ck = jnp.where(table_valid[row] & ok(tn, tf, const[1]), tn, INF)
+            # A scatter, not a select per level: XLA would compute the slab test once per level.
+            Kc = Kc.reshape(w * top, BRANCH).at[slot].set(ck, mode="drop").reshape(w, top, BRANCH)
+            base = jnp.where(jnp.stack(acts[1:], 1), jnp.stack(node[1:], 1) * BRANCH, base)
+        return Kc, keys_top, base, least(Kc, keys_top), st
+
+    def active(carry):
+        out = jnp.zeros((carry[1].shape[0],), bool)
+        for x in wants(carry[3], carry[4]):
+            out = out | x
+        return out
+
+    Kc = jnp.full((n, top, BRANCH), INF, kdt)
+    init = (Kc, keys_top, jnp.zeros((n, top), jnp.int32), least(Kc, keys_top), state)
+    return _compacting_loop(init, (const, inv), active, step)[4]
 
 
 def closest(acc: Accel, ray, tmin):
     """Per ray: nearest triangle distance (inf on a miss) and its merged-list index,
     equal to the brute-force search."""
     ray2 = tuple(r[:, None] for r in ray)
-    tn, tf = slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
-    keys = jnp.where((tn <= tf) & (tf > tmin), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype
 
-    def body(leaf, act, ray2, st):
+    def body(leaf, act, const, st):
         tb, ib = st
-        T = tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, tmin)
+        T = tri_t(const[0], {k: v[leaf] for k, v in acc.tri.items()}, tmin)
         T = jnp.where(act[:, None], T, INF)
         tj, j = V.min_argmin(T)
         ij = _row(acc.index, leaf, j)
@@ -254,7 +354,14 @@ def closest(acc: Accel, ray, tmin):
         return jnp.where(better, tj, tb), jnp.where(better, ij, ib)
 
     init = (jnp.full((n,), INF, dt), jnp.full((n,), jnp.iinfo(jnp.int32).max, jnp.int32))
-    tb, ib = _visit(keys, ray2, init, body, lambda k, st: (k < INF) & (k <= st[0]))
+    tb, ib = _traverse(
+        acc,
+        (ray2, None),
+        init,
+        body,
+        lambda k, st: (k < INF) & (k <= st[0]),
+        lambda tn, tf, _: (tn <= tf) & (tf > tmin),
+    )
     return tb, jnp.where(tb < INF, ib, 0)
 
 
@@ -262,8 +369,6 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
     """Per shadow ray: surfaces of each material crossed on ``(0, tmax)``, ``(n, M)``,
     equal to the brute-force count. ``material (N,)`` of the merged list; ``tmax (n, 1)``."""
     ray2 = tuple(r[:, None] for r in ray)
-    tn, tf = slab(ray2, {k: v[None, :] for k, v in acc.box.items()})
-    keys = jnp.where((tn <= tf) & (tf > 0) & (tn < tmax), tn, INF)  # pyright: ignore
     n = ray[0].shape[0]
     dt = ray[0].dtype
     mat = material[acc.index]  # (L, LEAF)
@@ -276,4 +381,11 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
         oh = (m[:, :, None] == mids[None, None, :]) & hit[:, :, None]
         return counts + jnp.sum(oh.astype(dt), 1)
 
-    return _visit(keys, (ray2, tmax), jnp.zeros((n, n_materials), dt), body, lambda k, st: k < INF)
+    return _traverse(
+        acc,
+        (ray2, tmax),
+        jnp.zeros((n, n_materials), dt),
+        body,
+        lambda k, st: k < INF,
+        lambda tn, tf, tmax: (tn <= tf) & (tf > 0) & (tn < tmax),
+    )

@@ -66,8 +66,7 @@ def _rays(n=600, seed=1, inside=0.3):
     return jnp.asarray(o.T, jnp.float32), jnp.asarray(d.T, jnp.float32)
 
 
-@jax.jit
-def _search(scene, o, d, tmax):
+def _search_impl(scene, o, d, tmax):
     """(t, idx) of the triangle kind and occluder counts, with the scene's BVH and by brute force."""
     kinds = I.prepare(scene)
     brute = [k._replace(accel=None) for k in kinds]
@@ -83,9 +82,12 @@ def _search(scene, o, d, tmax):
     )
 
 
-def _check_search(scene, o, d):
+_search = jax.jit(_search_impl)
+
+
+def _check_search(scene, o, d, search=_search):
     tmax = jnp.asarray(np.random.default_rng(2).uniform(0.1, 4.0, o.shape[1]), o.dtype)
-    (t, i), (tb, ib), c, cb = _search(scene, o, d, tmax)
+    (t, i), (tb, ib), c, cb = search(scene, o, d, tmax)
     t, i, tb, ib = map(np.asarray, (t, i, tb, ib))
     hit = np.isfinite(tb)
     assert 0.1 * hit.size < hit.sum() < hit.size  # hits and misses
@@ -122,6 +124,48 @@ def test_search_and_occluders_match_brute_force(mesh):
     s = _scene(v, f)
     o, d = _rays()
     _check_search(s, o, d)
+
+
+def test_topology_runs_of_branch_leaves_are_subtrees():
+    """Aligned runs of BRANCH leaves (the inner nodes) are compact in space, as the leaves are."""
+    c = np.random.default_rng(1).uniform(size=(5000, 3))
+    order, pad = B.build_topology(c, leaf=8, branch=4)
+    leaves = order.reshape(-1, 8)
+    assert leaves.shape[0] == 625
+    np.testing.assert_array_equal(np.sort(order[pad == 0]), np.arange(5000))
+    for run in (4, 16, 64):  # levels 1, 2, 3
+        full = leaves.shape[0] // run * run
+        groups = c[leaves[:full].reshape(-1, run * 8)]  # (runs, run * 8, 3)
+        vol = np.ptp(groups, axis=1).prod(-1)
+        # a subtree of k leaves of a uniform cloud spans about k / 625 of its volume
+        assert np.median(vol) < 3 * run / 625, run
+
+
+def test_several_levels_match_brute_force(monkeypatch):
+    """With a small branching factor the soup's 13 leaves get two inner levels; search,
+    shadow crossings (also under vmap over vertex sets) equal brute force."""
+    monkeypatch.setattr(B, "BRANCH", 2)
+    monkeypatch.setattr(B, "TOP_MAX", 2)
+    v, f = _soup()
+    s = _scene(v, f)
+    acc = next(k for k in I.prepare(s) if k.name == "triangle").accel
+    assert acc is not None and [lv["lox"].shape[0] for lv in acc.levels] == [7, 4, 2]
+    search = jax.jit(_search_impl)  # traced with the patched constants
+    o, d = _rays()
+    _check_search(s, o, d, search)
+    v2 = v * np.array([1.0, 0.5, 1.5]) + 0.3
+    s2 = rt.with_parameters(s, {"object[1].vertices": v2})
+    tmax = jnp.full((o.shape[1],), 3.0, o.dtype)
+
+    def one(vert):
+        return search(eqx.tree_at(lambda x: x.meshes[0].vertices, s, vert), o, d, tmax)
+
+    (t, i), (tb, ib), c, cb = jax.vmap(one)(jnp.stack([s.meshes[0].vertices, s2.meshes[0].vertices]))
+    hit = np.isfinite(np.asarray(tb))
+    assert 0.1 * hit.size < hit.sum() < hit.size
+    np.testing.assert_array_equal(np.isfinite(np.asarray(t)), hit)
+    np.testing.assert_array_equal(np.asarray(i)[hit], np.asarray(ib)[hit])
+    np.testing.assert_array_equal(np.asarray(c), np.asarray(cb))
 
 
 def test_refit_after_moving_vertices_and_vmap():
