@@ -157,6 +157,28 @@ def many_triangles(n, width=160, height=120, spp=1, max_depth=2, seed=0):
     return b.build()
 
 
+def terrain(n, width=160, height=120, spp=1, max_depth=2, seed=0):
+    """A height field of about ``n`` triangles (a k x k grid of cells, two triangles
+    each, rolling hills and noise) under one light, a mirror sphere above it."""
+    rng = np.random.default_rng(seed)
+    k = max(2, round(math.sqrt(n / 2)))
+    b = rt.SceneBuilder(
+        "physical", width=width, height=height, spp=spp, max_depth=max_depth, name=f"terrain{2 * k * k}"
+    )
+    b.camera(position=(0.0, 2.5, 6.0), look_at=(0.0, 0.0, 0.0), fov=45.0)
+    b.light((2.0, 6.0, 4.0), (60.0, 60.0, 60.0))
+    b.material("ground", color=(0.5, 0.6, 0.4))
+    b.material("mirror", color=(0.0, 0.0, 0.0), reflectivity=0.9)
+    x, z = np.meshgrid(np.linspace(-4, 4, k + 1), np.linspace(-4, 4, k + 1))
+    y = 0.4 * np.sin(1.3 * x) * np.cos(0.9 * z) + 0.02 * rng.standard_normal(x.shape)
+    v = np.stack([x.ravel(), y.ravel(), z.ravel()], 1)
+    i = np.arange(k * (k + 1)).reshape(k, k + 1)[:, :k].ravel()
+    f = np.concatenate([np.stack([i, i + k + 1, i + 1], 1), np.stack([i + 1, i + k + 1, i + k + 2], 1)])
+    b.mesh(v, f, "ground")
+    b.sphere((0.5, 1.2, 0.0), 0.6, "mirror")
+    return b.build()
+
+
 def extra_scenes(width=96, height=72, spp=16, max_depth=6):
     """Small physical scenes that exercise the corners of the model (for
     ``compare_mitsuba.py --extra``): glass meshes (box, tetrahedron), a mixed

@@ -50,7 +50,7 @@ from jaxtyping import Array, Int
 from . import vec as V
 from .masks import count_true, true_indices
 from .shapes.base import check_shape
-from .shapes.triangles import tri_t
+from .shapes.triangles import tri_soa, tri_t
 
 LEAF = 32  # triangles per leaf
 BRANCH = 16  # children of an inner node (leaves, or inner nodes of the level below)
@@ -148,11 +148,13 @@ class Accel(NamedTuple):
     levels: tuple = ()
 
 
-def prepare(bvh: TriangleBVH, soa: dict) -> Accel:
-    """Permute the triangle SoA (stop-gradient ``(N,)`` arrays of ``tri_soa``) into
-    leaf order and refit the leaf boxes to the current vertices."""
+def prepare(bvh: TriangleBVH, triangles) -> Accel:
+    """The search arrays of the merged triangle list ``triangles (N, 3, 3)``
+    (stop-gradient) in leaf order (``tri_soa`` of the permuted triangles: one gather of
+    whole triangles), with the leaf boxes refit to the current vertices."""
     nl = bvh.n_leaves
-    P = {k: v[bvh.order] for k, v in soa.items()}
+    T = triangles[bvh.order]
+    P = tri_soa(T[:, 0], T[:, 1], T[:, 2])
     ax, ay, az = P["ax"], P["ay"], P["az"]
     xs = (ax, ax + P["e1x"], ax + P["e2x"])
     ys = (ay, ay + P["e1y"], ay + P["e2y"])

@@ -138,7 +138,7 @@ def _triangle_kind(scene) -> Kind | None:
     bvh = getattr(scene, "bvh", None)
     acc = None
     if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
-        acc = B.prepare(bvh, soa)
+        acc = B.prepare(bvh, jax.lax.stop_gradient(T))
     return Kind("triangle", soa, M, tri_t, thit, None, acc)
 
 
