@@ -57,7 +57,7 @@ BRANCH = 16  # children of an inner node (leaves, or inner nodes of the level be
 TOP_MAX = 64  # nodes of the top level: inner levels are added until at most this many remain
 MIN_TRIANGLES = 64  # the BVH is used above this many triangles, brute force below (crossover: benchmarks/README.md)
 INF = float("inf")
-SHRINK = (8, 8)  # compaction factors of the traversal loop (see _compacting_loop)
+SHRINK = (4, 4)  # compaction factors of the traversal loop (see _compacting_loop)
 
 
 class TriangleBVH(eqx.Module):
