@@ -11,10 +11,11 @@ both renderers in turn (raytrax first; ratios in one process, as the load moves)
 Forward render at 320 x 240, spp 1, depth 2 (``--size``, ``--spp``). raytrax:
 ``rt.render`` under ``jax.jit``, first call (compilation included, no persistent
 cache) and the fastest of 5 steady calls, the host-side BVH build (part of
-``SceneBuilder.build``), peak RSS. Mitsuba: the one-kernel Whitted integrator of
+``SceneBuilder.build``), peak RSS after the forward calls. Mitsuba: the one-kernel Whitted integrator of
 ``mitsuba_scene.py`` (``llvm_ad_rgb``; Embree builds its BVH when the scene loads),
 first (an empty Dr.Jit kernel cache) and fastest of 5 calls. ``--grad``: also ``value_and_grad`` of the image MSE
-with respect to the light position (raytrax only).
+with respect to the light position (raytrax only; first call, fastest of 3, and the
+peak RSS after it).
 
     python benchmarks/bench_meshes.py [--sizes 1000,10000,100000,1000000] [--scenes soup,terrain] [--grad]
 """
@@ -64,16 +65,17 @@ def worker(cfg):
     out = dict(n=n_tri, build=build, bvh=sc.bvh is not None)
     fwd = jax.jit(rt.render)
     out["rt"] = _best(lambda: fwd(sc))
+    out["rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     if cfg["grad"]:
         target = fwd(sc)
 
-        def loss(p):
+        def loss(p, sc):  # the scene is an argument (closed over, its arrays would be constants of the program)
             return jnp.mean((rt.render(rt.with_parameters(sc, {"light[0].position": p})) - target * 0.9) ** 2)
 
         vg = jax.jit(jax.value_and_grad(loss))
         p0 = rt.parameters(sc)["light[0].position"]
-        out["rt_grad"] = _best(lambda: vg(p0), reps=3)
-    out["rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        out["rt_grad"] = _best(lambda: vg(p0, sc), reps=3)
+        out["rss_grad_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     try:
         import mitsuba_scene as ms
 
@@ -137,7 +139,7 @@ def main():
                 f"   {r['rt'][0]:10.2f} s / {mfirst:18s} {r['rss_mib']:5.0f} MiB"
             )
             if a.grad:
-                line += f"   {r['rt_grad'][1]:.4f} s ({r['rt_grad'][0]:.1f} s)"
+                line += f"   {r['rt_grad'][1]:.4f} s ({r['rt_grad'][0]:.1f} s, {r['rss_grad_mib']:.0f} MiB)"
             print(line, flush=True)
 
 

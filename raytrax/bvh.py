@@ -63,8 +63,8 @@ SHRINK = (4, 4)  # compaction factors of the traversal loop (see _compacting_loo
 class TriangleBVH(eqx.Module):
     """Leaf order of the merged triangle list: ``order (L * LEAF,)`` merged-list
     indices, leaf ``l`` being ``order[l * LEAF:(l + 1) * LEAF]``; ``pad`` (same
-    shape, int 0/1) marks padding slots (they repeat a triangle of their leaf and
-    are never hit)."""
+    shape, int 0/1) marks padding slots (they repeat the first triangle of their leaf;
+    the shadow crossings skip them)."""
 
     order: Int[Array, " P"]
     pad: Int[Array, " P"]
@@ -135,15 +135,17 @@ def for_scene(scene) -> TriangleBVH | None:
 
 
 class Accel(NamedTuple):
-    """Traced search arrays: triangle SoA ``(L, LEAF)`` in leaf order (padding
-    slots have zero edges, so never hit), merged-list index ``(L, LEAF)`` of each
-    slot, leaf boxes ``(L,)`` per component, and the inner levels, lowest first:
+    """Traced search arrays: triangle SoA ``(L, LEAF)`` in leaf order, merged-list
+    index ``(L, LEAF)`` of each slot, which slots are padding ``(L, LEAF)`` (they
+    repeat their leaf's first triangle), leaf boxes ``(L,)`` per component, and the
+    inner levels, lowest first:
     ``levels[k]`` holds the boxes of the nodes of level ``k + 1`` (``(L_k+1,)`` per
     component; node ``i`` of level ``k + 1`` bounds nodes ``i * BRANCH ...`` of level
     ``k``, level 0 being the leaves). Empty when the rays test every leaf box."""
 
     tri: dict
     index: jax.Array
+    pad: jax.Array
     box: dict
     levels: tuple = ()
 
@@ -153,16 +155,11 @@ def prepare(bvh: TriangleBVH, triangles) -> Accel:
     (stop-gradient) in leaf order (``tri_soa`` of the permuted triangles: one gather of
     whole triangles), with the leaf boxes refit to the current vertices."""
     nl = bvh.n_leaves
-    T = triangles[bvh.order]
-    P = tri_soa(T[:, 0], T[:, 1], T[:, 2])
-    ax, ay, az = P["ax"], P["ay"], P["az"]
-    xs = (ax, ax + P["e1x"], ax + P["e2x"])
-    ys = (ay, ay + P["e1y"], ay + P["e2y"])
-    zs = (az, az + P["e1z"], az + P["e2z"])
+    T = triangles[bvh.order]  # padding slots repeat a triangle of their leaf
     los, his = [], []
-    for comp in (xs, ys, zs):
-        los.append(jnp.min(jnp.minimum(jnp.minimum(comp[0], comp[1]), comp[2]).reshape(nl, LEAF), 1))
-        his.append(jnp.max(jnp.maximum(jnp.maximum(comp[0], comp[1]), comp[2]).reshape(nl, LEAF), 1))
+    for c in range(3):
+        los.append(jnp.min(jnp.min(T[:, :, c], 1).reshape(nl, LEAF), 1))
+        his.append(jnp.max(jnp.max(T[:, :, c], 1).reshape(nl, LEAF), 1))
     # Pad by a relative margin (of the leaf's largest extent, so flat leaves get some
     # thickness, and of its distance from the origin) so that the rounding of the slab
     # test never drops a leaf whose triangle the differently rounded triangle test hits.
@@ -176,12 +173,9 @@ def prepare(bvh: TriangleBVH, triangles) -> Accel:
     for name, lo, hi in zip("xyz", los, his):
         box["lo" + name] = jax.lax.stop_gradient(lo - eps)
         box["hi" + name] = jax.lax.stop_gradient(hi + eps)
-    keep = bvh.pad == 0
-    tri = {}
-    for k, v in P.items():
-        if k.startswith("e"):
-            v = jnp.where(keep, v, jnp.zeros((), v.dtype))
-        tri[k] = v.reshape(nl, LEAF)
+    # A padding slot is its leaf's first triangle again: the same distance and index,
+    # so the closest hit is unchanged; the shadow crossings skip it (see crossings).
+    tri = {k: v.reshape(nl, LEAF) for k, v in tri_soa(T[:, 0], T[:, 1], T[:, 2]).items()}
     levels = []
     cur, n = box, nl
     while n > TOP_MAX:
@@ -190,7 +184,7 @@ def prepare(bvh: TriangleBVH, triangles) -> Accel:
         cur = {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in rows.items()}
         levels.append(cur)
         n = up
-    return Accel(tri, bvh.order.reshape(nl, LEAF), box, tuple(levels))
+    return Accel(tri, bvh.order.reshape(nl, LEAF), bvh.pad.reshape(nl, LEAF) != 0, box, tuple(levels))
 
 
 def inverse_directions(ray2):
@@ -373,7 +367,7 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
     ray2 = tuple(r[:, None] for r in ray)
     n = ray[0].shape[0]
     dt = ray[0].dtype
-    mat = material[acc.index]  # (L, LEAF)
+    mat = jnp.where(acc.pad, -1, material[acc.index])  # (L, LEAF); padding: no material, not counted
     mids = jnp.arange(n_materials, dtype=mat.dtype)
 
     def body(leaf, act, const, counts):
