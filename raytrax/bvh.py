@@ -22,9 +22,11 @@ Split of the work:
 * **Traversal** (:func:`closest`, :func:`crossings`): every ray tests the top
   level's boxes (struct-of-arrays slab test, ``(rays, nodes)``), then one
   ``lax.while_loop`` walks the tree per ray, depth first, nearest entry first
-  among a node's children: a step either tests the ray's next leaf (gathering its
-  ``LEAF`` triangles: a ``(rays, LEAF)`` Moeller-Trumbore tile) or opens its next
-  node (a ``(rays, BRANCH)`` slab test of the node's children), until no ray has
+  among a node's children: in a step a ray whose open node of leaves has none
+  left opens its next node (a ``(rays, BRANCH)`` slab test of the node's
+  children), and a ray with a leaf to visit (one of a node of leaves opened in
+  the same step included) tests it (gathering its ``LEAF`` triangles: a
+  ``(rays, LEAF)`` Moeller-Trumbore tile), until no ray has
   a node left that could hold a nearer hit (closest hit) or that overlaps its
   segment (shadow crossings). Rays are masked, and compacted once few are left,
   so the few rays that take many steps do not cost a full-width step each. A
@@ -253,9 +255,11 @@ def _traverse(acc: Accel, const, state, leaf_body, more, ok):
     """Visit, per ray, the leaves whose boxes pass ``ok``, depth first down the levels
     of ``acc``, nearest entry first among the children of a node. Each ray keeps, per
     level, the entry distances of the children of the node it is in (inf: visited or
-    missed); a step either tests the leaf of least entry or, when that level has none
-    left that ``more`` wants, opens the next node of the lowest level that has one
-    (tests its ``BRANCH`` children's boxes). One loop for all levels
+    missed). In a step a ray whose leaves (the children of its open node of leaves)
+    hold none that ``more`` wants opens the next node of the lowest level that has one
+    (tests its ``BRANCH`` children's boxes), then a ray with a leaf it wants (also the
+    first of a node of leaves opened just now) tests the leaf of least entry. One loop
+    for all levels
     (:func:`_compacting_loop`). ``const = (ray2, extra)``: rays ``(n, 1)`` and what
     ``ok(tn, tf, extra) -> bool`` and ``leaf_body`` use; ``leaf_body(leaf (n,), active
     (n,), const, state) -> state``; ``more(key (n,), state)``: whether a ray still
@@ -302,24 +306,32 @@ def _traverse(acc: Accel, const, state, leaf_body, more, ok):
         for x in wants(mins, st):  # each ray acts at the lowest level that has a node it wants
             acts.append(x & ~lower)
             lower = lower | x
-        st = leaf_body(base[:, 0] + i[:, 0] if top else it, acts[0], const, st)
         tcols = jnp.arange(keys_top.shape[1], dtype=jnp.int32)[None, :]
         keys_top = jnp.where(acts[top][:, None] & (tcols == it[:, None]), INF, keys_top).astype(kdt)
-        if top:
-            A = jnp.stack(acts[:top], 1)  # (n, top)
-            Kc = jnp.where(A[:, :, None] & (cols == i[:, :, None]), INF, Kc).astype(kdt)
-            # Open the node: test its children's boxes, into the keys of the level below.
-            node = [base[:, level] + i[:, level] for level in range(top)] + [it]
-            row = jnp.zeros((w,), jnp.int32)
-            slot = jnp.full((w,), w * top, jnp.int32)  # out of range: dropped
-            for level in range(1, top + 1):
-                row = jnp.where(acts[level], off[level - 1] + node[level], row)
-                slot = jnp.where(acts[level], jnp.arange(w, dtype=jnp.int32) * top + (level - 1), slot)
-            tn, tf = slab(const[0], {c: v[row] for c, v in table.items()}, inv)  # (n, BRANCH)
-            ck = jnp.where(table_valid[row] & ok(tn, tf, const[1]), tn, INF)
-            # A scatter, not a select per level: XLA would compute the slab test once per level.
-            Kc = Kc.reshape(w * top, BRANCH).at[slot].set(ck, mode="drop").reshape(w, top, BRANCH)
-            base = jnp.where(jnp.stack(acts[1:], 1), jnp.stack(node[1:], 1) * BRANCH, base)
+        if not top:
+            st = leaf_body(it, acts[0], const, st)
+            return Kc, keys_top, base, least(Kc, keys_top), st
+        # Open a node of the lowest level that has one left: test its children's boxes,
+        # into the keys of the level below (the rays that test a leaf open nothing).
+        A = jnp.stack([jnp.zeros((w,), bool)] + acts[1:top], 1)  # (n, top): nodes opened from Kc
+        Kc = jnp.where(A[:, :, None] & (cols == i[:, :, None]), INF, Kc).astype(kdt)
+        node = [base[:, level] + i[:, level] for level in range(top)] + [it]
+        row = jnp.zeros((w,), jnp.int32)
+        slot = jnp.full((w,), w * top, jnp.int32)  # out of range: dropped
+        for level in range(1, top + 1):
+            row = jnp.where(acts[level], off[level - 1] + node[level], row)
+            slot = jnp.where(acts[level], jnp.arange(w, dtype=jnp.int32) * top + (level - 1), slot)
+        tn, tf = slab(const[0], {c: v[row] for c, v in table.items()}, inv)  # (n, BRANCH)
+        ck = jnp.where(table_valid[row] & ok(tn, tf, const[1]), tn, INF)
+        # A scatter, not a select per level: XLA would compute the slab test once per level.
+        Kc = Kc.reshape(w * top, BRANCH).at[slot].set(ck, mode="drop").reshape(w, top, BRANCH)
+        base = jnp.where(jnp.stack(acts[1:], 1), jnp.stack(node[1:], 1) * BRANCH, base)
+        # Then the leaf of least entry, in the same step: also the first leaf of a node of
+        # leaves opened just now.
+        m0, i0 = V.min_argmin(Kc[:, 0])
+        a0 = acts[0] | (acts[1] & more(m0, st))
+        st = leaf_body(base[:, 0] + i0, a0, const, st)
+        Kc = Kc.at[:, 0].set(jnp.where(a0[:, None] & (cols[:, 0] == i0[:, None]), INF, Kc[:, 0]).astype(kdt))
         return Kc, keys_top, base, least(Kc, keys_top), st
 
     def active(carry):
