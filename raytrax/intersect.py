@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -66,12 +66,17 @@ class Kind(NamedTuple):
     soa: dict  # stop-gradient (N,) component arrays
     material: jax.Array  # (N,) int
     tfun: Callable
-    hit: Callable  # (idx (n,), o, d, t0) -> (t, n, uv, rate)
+    hit: Callable  # (idx (n,), o, d, t0) -> (t, n, uv, rate); with rows: (rows gathered for the rays, o, d, t0)
     crossings: Callable | None = None  # (ray, P, tmax) -> (n, B) surface crossings; None: one per hit
     accel: B.Accel | None = None  # triangle BVH search arrays (see raytrax.bvh); None: brute force
     spec: S.KindSpec | None = None  # the registry entry; None for the merged triangle list
     curvature: jax.Array | None = None  # (N,) 1 / radius (differentiable); None: flat
     groups: Groups | None = None  # spatial groups of the search (see _groups); None: no culling
+    # Per-primitive arrays (leading axis N) that hit reads, gathered for the rays'
+    # primitives before hit is called (hit_args), so that a conditional around hit
+    # carries per-ray rows, not the whole table: reverse mode saved a conditional's
+    # operands once per batch of rays (36 MB each time for a mesh of 10^6 triangles).
+    rows: Any = None
 
 
 class Hit(NamedTuple):
@@ -130,8 +135,7 @@ def _triangle_kind(scene) -> Kind | None:
     if not T.shape[0]:
         return None
 
-    def thit(i, o, d, t0):
-        v = T[i]
+    def thit(v, o, d, t0):  # v: the rays' triangles (n, 3, 3), gathered by hit_args
         return tri_hit(v[:, 0].T, v[:, 1].T, v[:, 2].T, o, d, t0)
 
     soa = _ng(tri_soa(T[:, 0], T[:, 1], T[:, 2]))
@@ -139,7 +143,20 @@ def _triangle_kind(scene) -> Kind | None:
     acc = None
     if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
         acc = B.prepare(bvh, jax.lax.stop_gradient(T))
-    return Kind("triangle", soa, M, tri_t, thit, None, acc)
+    return Kind("triangle", soa, M, tri_t, thit, None, acc, rows=T)
+
+
+def hit_args(k: Kind, idx):
+    """The first argument of ``k.hit`` for the rays' primitives ``idx (n,)``: ``idx``
+    itself, or the kind's ``rows`` gathered at ``idx``. Where the kind has more
+    primitives than there are rays, the rows are named like the search's results:
+    reverse mode under the integrator's shading checkpoint then keeps the rays' rows
+    rather than the whole table, which it would otherwise keep once per batch of rays
+    to gather from again (36 MB each time for a mesh of 10^6 triangles)."""
+    if k.rows is None:
+        return idx
+    rows = jax.tree_util.tree_map(lambda a: a[idx], k.rows)
+    return checkpoint_name(rows, "raytrax_search") if k.material.shape[0] > idx.shape[0] else rows
 
 
 def _blocks(soa, extra=None):
@@ -318,7 +335,7 @@ def closest_kind(k: Kind, ray, tmin):
     return tb, ib
 
 
-def no_hit(idx, o, d, t0):
+def no_hit(_, o, d, t0):
     z = jnp.zeros_like(t0)
     return z, jnp.zeros_like(o), jnp.zeros((2,) + z.shape, z.dtype), jnp.zeros((2,) + z.shape, z.dtype)
 
@@ -379,14 +396,20 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             # Under a cond: skipped when no ray hit this kind, and its inputs and outputs
             # are materialised (XLA:CPU would otherwise fuse the search into every
             # consumer of the recomputation and repeat it per output component).
-            tk, nk, uvk, rk = jax.lax.cond(any_in_batch(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t0, 0.0))
+            tk, nk, uvk, rk = jax.lax.cond(
+                any_in_batch(sel), k.hit, no_hit, hit_args(k, idx), o, d, jnp.where(sel, t0, 0.0)
+            )
             t = jnp.where(sel, tk, t)
             nrm = jnp.where(sel[None], nk, nrm)
             uv = jnp.where(sel[None], uvk, uv)
             rate = jnp.where(sel[None], rk, rate)
-            mat = jnp.where(sel, V.take_rows(k.material, idx), mat)
+            # Kept per ray in reverse mode where the table is larger (as hit_args' rows).
+            big = k.material.shape[0] > n
+            mk = V.take_rows(k.material, idx)
+            mat = jnp.where(sel, checkpoint_name(mk, "raytrax_search") if big else mk, mat)
             if k.curvature is not None:
-                curv = jnp.where(sel, V.take_rows(k.curvature, idx).astype(o.dtype), curv)
+                ck = V.take_rows(k.curvature, idx)
+                curv = jnp.where(sel, (checkpoint_name(ck, "raytrax_search") if big else ck).astype(o.dtype), curv)
         return Hit(valid, t, nrm, uv, rate, mat, curv)
 
     def no_ray(which, t0, ids, o, d):

@@ -13,7 +13,7 @@ from .. import textures as tx
 from .. import vec as V
 from ..camera import rays_through
 from ..chunks import equal_chunks, map_chunks
-from ..intersect import nearest_kind, no_hit, offset_scale
+from ..intersect import hit_args, nearest_kind, no_hit, offset_scale
 from ..masks import any_true, count_true, true_indices
 from ..materials import refracts_dominantly
 from ..textures import pattern_cell
@@ -103,7 +103,7 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
         start, end, per = kind_ids(off, k)
         sel = (gid >= start) & (gid < end)
         idx = jnp.where(sel, (gid - start) // per, 0)
-        _, _, uvk, _ = jax.lax.cond(any_true(sel), k.hit, no_hit, idx, o, d, jnp.where(sel, t, 0.0))
+        _, _, uvk, _ = jax.lax.cond(any_true(sel), k.hit, no_hit, hit_args(k, idx), o, d, jnp.where(sel, t, 0.0))
         uv = jnp.where(sel[None], uvk, uv)
     return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
 
