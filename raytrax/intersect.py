@@ -72,10 +72,8 @@ class Kind(NamedTuple):
     spec: S.KindSpec | None = None  # the registry entry; None for the merged triangle list
     curvature: jax.Array | None = None  # (N,) 1 / radius (differentiable); None: flat
     groups: Groups | None = None  # spatial groups of the search (see _groups); None: no culling
-    # Per-primitive arrays (leading axis N) that hit reads, gathered for the rays'
-    # primitives before hit is called (hit_args), so that a conditional around hit
-    # carries per-ray rows, not the whole table: reverse mode saved a conditional's
-    # operands once per batch of rays (36 MB each time for a mesh of 10^6 triangles).
+    # Per-primitive arrays (leading axis N) that hit reads; hit also takes them gathered
+    # for the rays' primitives, which hit_args does for large tables (see there).
     rows: Any = None
 
 
@@ -135,7 +133,8 @@ def _triangle_kind(scene) -> Kind | None:
     if not T.shape[0]:
         return None
 
-    def thit(v, o, d, t0):  # v: the rays' triangles (n, 3, 3), gathered by hit_args
+    def thit(a, o, d, t0):  # a: the rays' triangle indices (n,), or their triangles (n, 3, 3) (hit_args)
+        v = T[a] if a.ndim == 1 else a
         return tri_hit(v[:, 0].T, v[:, 1].T, v[:, 2].T, o, d, t0)
 
     soa = _ng(tri_soa(T[:, 0], T[:, 1], T[:, 2]))
@@ -148,15 +147,14 @@ def _triangle_kind(scene) -> Kind | None:
 
 def hit_args(k: Kind, idx):
     """The first argument of ``k.hit`` for the rays' primitives ``idx (n,)``: ``idx``
-    itself, or the kind's ``rows`` gathered at ``idx``. Where the kind has more
-    primitives than there are rays, the rows are named like the search's results:
+    itself, or, where the kind has ``rows`` and more primitives than there are rays,
+    its rows gathered at ``idx``, named like the search's results:
     reverse mode under the integrator's shading checkpoint then keeps the rays' rows
     rather than the whole table, which it would otherwise keep once per batch of rays
     to gather from again (36 MB each time for a mesh of 10^6 triangles)."""
-    if k.rows is None:
+    if k.rows is None or k.material.shape[0] <= idx.shape[0]:
         return idx
-    rows = jax.tree_util.tree_map(lambda a: a[idx], k.rows)
-    return checkpoint_name(rows, "raytrax_search") if k.material.shape[0] > idx.shape[0] else rows
+    return checkpoint_name(jax.tree_util.tree_map(lambda a: a[idx], k.rows), "raytrax_search")
 
 
 def _blocks(soa, extra=None):
