@@ -34,24 +34,11 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def _best(f, reps=5):
-    import jax
-
-    t = time.perf_counter()
-    jax.block_until_ready(f())
-    first = time.perf_counter() - t
-    best = float("inf")
-    for _ in range(reps):
-        t = time.perf_counter()
-        jax.block_until_ready(f())
-        best = min(best, time.perf_counter() - t)
-    return first, best
-
-
 def worker(cfg):
     sys.path.insert(0, HERE)
     import jax
     import jax.numpy as jnp
+    from bench_culling import _time
 
     import raytrax as rt
     import scenes
@@ -64,7 +51,7 @@ def worker(cfg):
     n_tri = int(sc.merged_triangles()[0].shape[0])
     out = dict(n=n_tri, build=build, bvh=sc.bvh is not None)
     fwd = jax.jit(rt.render)
-    out["rt"] = _best(lambda: fwd(sc))
+    out["rt"] = _time(lambda: fwd(sc))
     out["rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     if cfg["grad"]:
         target = fwd(sc)
@@ -74,7 +61,7 @@ def worker(cfg):
 
         vg = jax.jit(jax.value_and_grad(loss))
         p0 = rt.parameters(sc)["light[0].position"]
-        out["rt_grad"] = _best(lambda: vg(p0, sc), reps=3)
+        out["rt_grad"] = _time(lambda: vg(p0, sc), reps=3)
         out["rss_grad_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     try:
         import mitsuba_scene as ms
@@ -83,7 +70,7 @@ def worker(cfg):
         t = time.perf_counter()
         m = ms.load(sc, sampler="stratified", integrator="whitted_kernel")
         out["mi_load"] = time.perf_counter() - t
-        out["mi"] = _best(lambda: ms.render_native(m))
+        out["mi"] = _time(lambda: ms.render_native(m))
     except Exception as e:  # noqa: BLE001 - Mitsuba is optional: say why it is missing
         out["mi_error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
     return out

@@ -181,12 +181,23 @@ def prepare(bvh: TriangleBVH, triangles) -> Accel:
     levels = []
     cur, n = box, nl
     while n > TOP_MAX:
-        up = -(-n // BRANCH)
-        rows = {c: jnp.pad(v, (0, up * BRANCH - n), mode="edge").reshape(up, BRANCH) for c, v in cur.items()}
-        cur = {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in rows.items()}
+        cur = merge_boxes(children(cur, -(-n // BRANCH)))
         levels.append(cur)
-        n = up
+        n = cur["lox"].shape[0]
     return Accel(tri, bvh.order.reshape(nl, LEAF), bvh.pad.reshape(nl, LEAF) != 0, box, tuple(levels))
+
+
+def children(box, up: int):
+    """Boxes ``(N,)`` per component as rows of ``BRANCH``, ``(up, BRANCH)`` (the
+    children of each of ``up`` nodes), the last row padded by repeating its last box
+    (which leaves the row's union unchanged; :func:`_traverse` masks the padding)."""
+    n = box["lox"].shape[0]
+    return {c: jnp.pad(v, (0, up * BRANCH - n), mode="edge").reshape(up, BRANCH) for c, v in box.items()}
+
+
+def merge_boxes(rows):
+    """The union of each row of boxes ``(m, k)`` per component: ``(m,)`` per component."""
+    return {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in rows.items()}
 
 
 def inverse_directions(ray2):
@@ -276,8 +287,8 @@ def _traverse(acc: Accel, const, state, leaf_body, more, ok):
     rows, valid, off = {c: [] for c in boxes[0]}, [], [0]
     for level in range(1, top + 1):
         nk, nup = boxes[level - 1]["lox"].shape[0], boxes[level]["lox"].shape[0]
-        for c, v in boxes[level - 1].items():
-            rows[c].append(jnp.pad(v, (0, nup * BRANCH - nk), mode="edge").reshape(nup, BRANCH))
+        for c, v in children(boxes[level - 1], nup).items():
+            rows[c].append(v)
         valid.append((np.arange(nup * BRANCH) < nk).reshape(nup, BRANCH))
         off.append(off[-1] + nup)
     table = {c: jnp.concatenate(v) for c, v in rows.items()} if top else {}

@@ -145,16 +145,22 @@ def _triangle_kind(scene) -> Kind | None:
     return Kind("triangle", soa, M, tri_t, thit, None, acc, rows=T)
 
 
+def _kept(k: Kind, rows, n: int):
+    """``rows`` gathered from ``k``'s tables for a batch of ``n`` rays, named like the
+    search's results where the tables are larger than the batch: reverse mode under the
+    integrator's shading checkpoint then keeps the rays' rows rather than the whole
+    tables, which it would otherwise keep once per batch of rays to gather from again
+    (36 MB each time for a mesh of 10^6 triangles)."""
+    return checkpoint_name(rows, "raytrax_search") if k.material.shape[0] > n else rows
+
+
 def hit_args(k: Kind, idx):
     """The first argument of ``k.hit`` for the rays' primitives ``idx (n,)``: ``idx``
     itself, or, where the kind has ``rows`` and more primitives than there are rays,
-    its rows gathered at ``idx``, named like the search's results:
-    reverse mode under the integrator's shading checkpoint then keeps the rays' rows
-    rather than the whole table, which it would otherwise keep once per batch of rays
-    to gather from again (36 MB each time for a mesh of 10^6 triangles)."""
+    its rows gathered at ``idx`` (see :func:`_kept`)."""
     if k.rows is None or k.material.shape[0] <= idx.shape[0]:
         return idx
-    return checkpoint_name(jax.tree_util.tree_map(lambda a: a[idx], k.rows), "raytrax_search")
+    return _kept(k, jax.tree_util.tree_map(lambda a: a[idx], k.rows), idx.shape[0])
 
 
 def _blocks(soa, extra=None):
@@ -222,7 +228,7 @@ def _groups(soa, bounds) -> Groups:
         return x.reshape((ns, SUPER) + x.shape[1:])
 
     box = {c: runs(v) for c, v in box.items()}
-    top = {c: (jnp.min if c.startswith("lo") else jnp.max)(v, 1) for c, v in box.items()}
+    top = B.merge_boxes(box)
     return Groups(runs(P), runs(valid), runs(members), box, top)
 
 
@@ -401,13 +407,9 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
             nrm = jnp.where(sel[None], nk, nrm)
             uv = jnp.where(sel[None], uvk, uv)
             rate = jnp.where(sel[None], rk, rate)
-            # Kept per ray in reverse mode where the table is larger (as hit_args' rows).
-            big = k.material.shape[0] > n
-            mk = V.take_rows(k.material, idx)
-            mat = jnp.where(sel, checkpoint_name(mk, "raytrax_search") if big else mk, mat)
+            mat = jnp.where(sel, _kept(k, V.take_rows(k.material, idx), n), mat)
             if k.curvature is not None:
-                ck = V.take_rows(k.curvature, idx)
-                curv = jnp.where(sel, (checkpoint_name(ck, "raytrax_search") if big else ck).astype(o.dtype), curv)
+                curv = jnp.where(sel, _kept(k, V.take_rows(k.curvature, idx), n).astype(o.dtype), curv)
         return Hit(valid, t, nrm, uv, rate, mat, curv)
 
     def no_ray(which, t0, ids, o, d):
