@@ -245,7 +245,10 @@ def test_gradients_through_a_mesh_larger_than_the_ray_batch_match_finite_differe
     assert tri.accel is not None and I.hit_args(tri, jnp.zeros((64,), jnp.int32)).shape == (64, 3, 3)
 
     def loss(light, dy):
-        q = {"light[0].position": light, "object[0].vertices": s.meshes[0].vertices + jnp.stack([0.0, dy, 0.0])[None, :]}
+        q = {
+            "light[0].position": light,
+            "object[0].vertices": s.meshes[0].vertices + jnp.stack([0.0, dy, 0.0])[None, :],
+        }
         return jnp.mean(rt.render(rt.with_parameters(s, q), tile_rays=64))
 
     x0 = (s.lights.position[0], jnp.asarray(0.0, jnp.float64))
