@@ -10,6 +10,7 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -94,39 +95,67 @@ class Mesh(eqx.Module):
 
 
 def tri_soa(v0, v1, v2):
-    """SoA of triangles from vertex arrays ``(T, 3)`` each."""
-    e1, e2 = v1 - v0, v2 - v0
-    return dict(
-        ax=v0[:, 0],
-        ay=v0[:, 1],
-        az=v0[:, 2],
-        e1x=e1[:, 0],
-        e1y=e1[:, 1],
-        e1z=e1[:, 2],
-        e2x=e2[:, 0],
-        e2y=e2[:, 1],
-        e2z=e2[:, 2],
-    )
+    """SoA of triangles from vertex arrays ``(T, 3)`` each: the vertices' components
+    ``ax ... cz`` (the search's test needs the vertices themselves, see :func:`tri_t`)."""
+    return {f"{p}{c}": v[:, i] for p, v in zip("abc", (v0, v1, v2)) for i, c in enumerate("xyz")}
+
+
+def ray_frame(ray):
+    """Per-ray constants of :func:`tri_t` for rays ``ray`` (the six components
+    ``ox ... dz``): the origin and three rows ``u, w, z`` that map a point ``p`` to
+    ``(u . (p - o), w . (p - o), z . (p - o))``, the ray's own frame in which the ray
+    is the z axis and ``z`` measures the ray parameter. With ``k`` the axis of the
+    direction's largest component, ``u`` and ``w`` shear the two others along it and
+    ``z = e_k / d_k`` (Woop, Benthin and Wald 2013; written as dot products with
+    one-hot rows instead of a permutation of the vertices)."""
+    ox, oy, oz, dx, dy, dz = ray
+    ax, ay, az = jnp.abs(dx), jnp.abs(dy), jnp.abs(dz)
+    on_x = (ax >= ay) & (ax >= az)
+    on_y = ~on_x & (ay >= az)
+    inv = 1.0 / jnp.where(on_x, dx, jnp.where(on_y, dy, dz))  # never 0: the largest component
+    # The other two axes, in cyclic order after the largest: (y, z), (z, x) or (x, y).
+    sx = jnp.where(on_x, dy, jnp.where(on_y, dz, dx)) * inv
+    sy = jnp.where(on_x, dz, jnp.where(on_y, dx, dy)) * inv
+    one, zero = jnp.ones_like(inv), jnp.zeros_like(inv)
+
+    def row(kx, ky, kz):  # the value of each axis where the largest axis is x, y or z
+        return tuple(jnp.where(on_x, a, jnp.where(on_y, b, c)) for a, b, c in zip(kx, ky, kz))
+
+    u = row((-sx, one, zero), (zero, -sx, one), (one, zero, -sx))
+    w = row((-sy, zero, one), (one, -sy, zero), (zero, one, -sy))
+    z = row((inv, zero, zero), (zero, inv, zero), (zero, zero, inv))
+    return jax.lax.optimization_barrier((ox, oy, oz, *u, *w, *z))
 
 
 def tri_t(ray, P, tmin):
-    ox, oy, oz, dx, dy, dz = ray
-    # Moeller-Trumbore.
-    px = dy * P["e2z"] - dz * P["e2y"]
-    py = dz * P["e2x"] - dx * P["e2z"]
-    pz = dx * P["e2y"] - dy * P["e2x"]
-    det = P["e1x"] * px + P["e1y"] * py + P["e1z"] * pz
-    ok = jnp.abs(det) > 1e-20
-    inv = 1.0 / jnp.where(ok, det, 1.0)
-    tx, ty, tz = ox - P["ax"], oy - P["ay"], oz - P["az"]
-    u = (tx * px + ty * py + tz * pz) * inv
-    qx = ty * P["e1z"] - tz * P["e1y"]
-    qy = tz * P["e1x"] - tx * P["e1z"]
-    qz = tx * P["e1y"] - ty * P["e1x"]
-    v = (dx * qx + dy * qy + dz * qz) * inv
-    t = (P["e2x"] * qx + P["e2y"] * qy + P["e2z"] * qz) * inv
-    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > tmin)
-    return jnp.where(hit, t, INF)
+    """Distance along ``ray`` (the six components) to the triangles ``P`` (:func:`tri_soa`),
+    ``inf`` where it misses or is not beyond ``tmin``; broadcasting like the arrays.
+
+    Watertight: the vertices are mapped into the ray's frame (:func:`ray_frame`, once
+    per ray) and the ray is inside where the three 2D edge functions agree in sign
+    (zero counts as inside). A vertex shared by two triangles maps to the same point in
+    both, and each edge function is written so that it rounds to exactly the negation
+    of itself with the edge's ends swapped (with or without fused multiply-adds), so a
+    ray through a shared edge or vertex hits at least one of its triangles. A
+    degenerate triangle (zero area as the ray sees it) is never hit."""
+    ox, oy, oz, ux, uy, uz, wx, wy, wz, zx, zy, zz = ray_frame(ray)
+
+    def project(p):
+        X, Y, Z = P[p + "x"] - ox, P[p + "y"] - oy, P[p + "z"] - oz
+        return ux * X + uy * Y + uz * Z, wx * X + wy * Y + wz * Z, zx * X + zy * Y + zz * Z
+
+    def edge(px, py, qx, qy):  # twice the 2D cross product p x q; edge(q, p) == -edge(p, q) exactly
+        return (px * qy - py * qx) - (qx * py - qy * px)
+
+    Ax, Ay, Az = project("a")
+    Bx, By, Bz = project("b")
+    Cx, Cy, Cz = project("c")
+    U, V_, W = edge(Bx, By, Cx, Cy), edge(Cx, Cy, Ax, Ay), edge(Ax, Ay, Bx, By)
+    inside = ((U >= 0) & (V_ >= 0) & (W >= 0)) | ((U <= 0) & (V_ <= 0) & (W <= 0))
+    det = U + V_ + W
+    ok = inside & (det != 0)
+    t = (U * Az + V_ * Bz + W * Cz) / jnp.where(ok, det, 1.0)
+    return jnp.where(ok & (t > tmin), t, INF)
 
 
 def tri_hit(v0, v1, v2, o, d, t0):
