@@ -33,7 +33,8 @@ Split of the work:
   step costs the same at 10^3 and 10^6 triangles; the number of steps grows
   with the depth of the tree and the leaves a ray must test.
 
-The results equal the brute-force search: the same kernel (``shapes.tri_t``) on
+The results equal the brute-force search: the same kernels (``shapes.tri_t``,
+``shapes.tri_crossings``) on
 the same numbers, ties between equal distances broken towards the lower
 triangle index as ``argmin`` does, and leaf boxes padded so that rounding never
 drops a leaf.
@@ -52,7 +53,7 @@ from jaxtyping import Array, Int
 from . import vec as V
 from .masks import count_true, true_indices
 from .shapes.base import check_shape
-from .shapes.triangles import tri_soa, tri_t
+from .shapes.triangles import ray_frame, tri_crossings, tri_soa, tri_t
 
 LEAF = 32  # triangles per leaf
 BRANCH = 16  # children of an inner node (leaves, or inner nodes of the level below)
@@ -356,6 +357,12 @@ def _traverse(acc: Accel, const, state, leaf_body, more, ok):
     return _compacting_loop(init, (const, inv), active, step)[4]
 
 
+def _frame2(ray):
+    """The triangle test's per-ray frame (``shapes.ray_frame``) as ``(n, 1)`` rows:
+    computed once per query and compacted with the rays."""
+    return tuple(f[:, None] for f in ray_frame(ray))
+
+
 def closest(acc: Accel, ray, tmin):
     """Per ray: nearest triangle distance (inf on a miss) and its merged-list index,
     equal to the brute-force search."""
@@ -365,7 +372,7 @@ def closest(acc: Accel, ray, tmin):
 
     def body(leaf, act, const, st):
         tb, ib = st
-        T = tri_t(const[0], {k: v[leaf] for k, v in acc.tri.items()}, tmin)
+        T = tri_t(const[0], {k: v[leaf] for k, v in acc.tri.items()}, tmin, const[1])
         T = jnp.where(act[:, None], T, INF)
         tj, j = V.min_argmin(T)
         ij = _row(acc.index, leaf, j)
@@ -375,7 +382,7 @@ def closest(acc: Accel, ray, tmin):
     init = (jnp.full((n,), INF, dt), jnp.full((n,), jnp.iinfo(jnp.int32).max, jnp.int32))
     tb, ib = _traverse(
         acc,
-        (ray2, None),
+        (ray2, _frame2(ray)),
         init,
         body,
         lambda k, st: (k < INF) & (k <= st[0]),
@@ -394,17 +401,17 @@ def crossings(acc: Accel, material, ray, tmax, n_materials):
     mids = jnp.arange(n_materials, dtype=mat.dtype)
 
     def body(leaf, act, const, counts):
-        ray2, tmax = const
-        hit = (tri_t(ray2, {k: v[leaf] for k, v in acc.tri.items()}, 0.0) < tmax) & act[:, None]
+        ray2, (tmax, frame) = const
+        hit = (tri_crossings(ray2, {k: v[leaf] for k, v in acc.tri.items()}, tmax, frame) > 0) & act[:, None]
         m = mat[leaf]  # (n, LEAF)
         oh = (m[:, :, None] == mids[None, None, :]) & hit[:, :, None]
         return counts + jnp.sum(oh.astype(dt), 1)
 
     return _traverse(
         acc,
-        (ray2, tmax),
+        (ray2, (tmax, _frame2(ray))),
         jnp.zeros((n, n_materials), dt),
         body,
         lambda k, st: k < INF,
-        lambda tn, tf, tmax: (tn <= tf) & (tf > 0) & (tn < tmax),
+        lambda tn, tf, extra: (tn <= tf) & (tf > 0) & (tn < extra[0]),
     )

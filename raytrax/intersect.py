@@ -30,7 +30,7 @@ from . import bvh as B
 from . import shapes as S
 from . import vec as V
 from .branching import any_in_batch
-from .shapes.triangles import tri_hit, tri_soa, tri_t
+from .shapes.triangles import tri_crossings, tri_hit, tri_soa, tri_t
 
 BLOCK = 128
 # Kinds of more than CULL_MIN primitives with world bounds (spheres, boxes, quads, disks)
@@ -142,7 +142,7 @@ def _triangle_kind(scene) -> Kind | None:
     acc = None
     if bvh is not None and T.shape[0] > B.MIN_TRIANGLES and bvh.n_triangles == T.shape[0]:
         acc = B.prepare(bvh, jax.lax.stop_gradient(T))
-    return Kind("triangle", soa, M, tri_t, thit, None, acc, rows=T)
+    return Kind("triangle", soa, M, tri_t, thit, tri_crossings, acc, rows=T)
 
 
 def _kept(k: Kind, rows, n: int):

@@ -28,7 +28,7 @@ from .disk import Disks, disk_hit, disk_soa, disk_t
 from .planar import Planes, Quads, plane_hit, plane_soa, plane_t, quad_hit, quad_soa, quad_t
 from .registry import BY_FIELD, BY_NAME, KINDS, OBJECT_TYPES
 from .sphere import Spheres, sphere_crossings, sphere_hit, sphere_soa, sphere_t
-from .triangles import Mesh, Tetrahedra, Triangles, tri_hit, tri_soa, tri_t
+from .triangles import Mesh, Tetrahedra, Triangles, ray_frame, tri_crossings, tri_hit, tri_soa, tri_t
 
 __all__ = [
     "INF",
@@ -66,6 +66,8 @@ __all__ = [
     "sphere_hit",
     "sphere_soa",
     "sphere_t",
+    "ray_frame",
+    "tri_crossings",
     "tri_hit",
     "tri_soa",
     "tri_t",

@@ -127,18 +127,11 @@ def ray_frame(ray):
     return jax.lax.optimization_barrier((ox, oy, oz, *u, *w, *z))
 
 
-def tri_t(ray, P, tmin):
-    """Distance along ``ray`` (the six components) to the triangles ``P`` (:func:`tri_soa`),
-    ``inf`` where it misses or is not beyond ``tmin``; broadcasting like the arrays.
-
-    Watertight: the vertices are mapped into the ray's frame (:func:`ray_frame`, once
-    per ray) and the ray is inside where the three 2D edge functions agree in sign
-    (zero counts as inside). A vertex shared by two triangles maps to the same point in
-    both, and each edge function is written so that it rounds to exactly the negation
-    of itself with the edge's ends swapped (with or without fused multiply-adds), so a
-    ray through a shared edge or vertex hits at least one of its triangles. A
-    degenerate triangle (zero area as the ray sees it) is never hit."""
-    ox, oy, oz, ux, uy, uz, wx, wy, wz, zx, zy, zz = ray_frame(ray)
+def _tri_test(ray, P, frame):
+    """The watertight test of :func:`tri_t`: whether each ray meets each triangle's plane
+    inside it, ``hit``, and the ray parameter of that point as ``T / D`` with ``D > 0``
+    (no division: the callers compare ``T`` with ``D`` times a distance)."""
+    ox, oy, oz, ux, uy, uz, wx, wy, wz, zx, zy, zz = ray_frame(ray) if frame is None else frame
 
     def project(p):
         X, Y, Z = P[p + "x"] - ox, P[p + "y"] - oy, P[p + "z"] - oz
@@ -153,9 +146,38 @@ def tri_t(ray, P, tmin):
     U, V_, W = edge(Bx, By, Cx, Cy), edge(Cx, Cy, Ax, Ay), edge(Ax, Ay, Bx, By)
     inside = ((U >= 0) & (V_ >= 0) & (W >= 0)) | ((U <= 0) & (V_ <= 0) & (W <= 0))
     det = U + V_ + W
-    ok = inside & (det != 0)
-    t = (U * Az + V_ * Bz + W * Cz) / jnp.where(ok, det, 1.0)
-    return jnp.where(ok & (t > tmin), t, INF)
+    T = U * Az + V_ * Bz + W * Cz
+    neg = det < 0
+    return inside & (det != 0), jnp.where(neg, -T, T), jnp.where(neg, -det, det)
+
+
+def tri_t(ray, P, tmin, frame=None):
+    """Distance along ``ray`` (the six components) to the triangles ``P`` (:func:`tri_soa`),
+    ``inf`` where it misses or is not beyond ``tmin``; broadcasting like the arrays.
+    ``frame``: the rays' :func:`ray_frame`, where a loop over many triangles computes
+    it once (else it is computed here).
+
+    Watertight: the vertices are mapped into the ray's frame (:func:`ray_frame`, once
+    per ray) and the ray is inside where the three 2D edge functions agree in sign
+    (zero counts as inside). A vertex shared by two triangles maps to the same point in
+    both, and each edge function is written so that it rounds to exactly the negation
+    of itself with the edge's ends swapped (with or without fused multiply-adds), so a
+    ray through a shared edge or vertex hits at least one of its triangles. A
+    degenerate triangle (zero area as the ray sees it) is never hit."""
+    hit, T, D = _tri_test(ray, P, frame)
+    ok = hit & (T > tmin * D)
+    # One division, last, of values that are already masked: XLA then fuses the whole
+    # test into one kernel (a division in the middle split it into several, each
+    # recomputing the projections).
+    return jnp.where(ok, T, INF) / jnp.where(ok, D, 1.0)
+
+
+def tri_crossings(ray, P, tmax, frame=None):
+    """Whether ``ray`` crosses the triangles ``P`` within the open segment ``(0, tmax)``
+    (:func:`tri_t`'s watertight test, without its division), as 0 or 1 in the rays'
+    dtype; broadcasting like the arrays."""
+    hit, T, D = _tri_test(ray, P, frame)
+    return (hit & (T > 0) & (T < tmax * D)).astype(ray[0].dtype)
 
 
 def tri_hit(v0, v1, v2, o, d, t0):
