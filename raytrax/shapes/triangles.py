@@ -102,40 +102,34 @@ def tri_soa(v0, v1, v2):
 
 def ray_frame(ray):
     """Per-ray constants of :func:`tri_t` for rays ``ray`` (the six components
-    ``ox ... dz``): the origin and three rows ``u, w, z`` that map a point ``p`` to
-    ``(u . (p - o), w . (p - o), z . (p - o))``, the ray's own frame in which the ray
-    is the z axis and ``z`` measures the ray parameter. With ``k`` the axis of the
-    direction's largest component, ``u`` and ``w`` shear the two others along it and
-    ``z = e_k / d_k`` (Woop, Benthin and Wald 2013; written as dot products with
-    one-hot rows instead of a permutation of the vertices)."""
+    ``ox ... dz``): the ray's own frame, in which the ray is the z axis and z measures
+    the ray parameter (Woop, Benthin and Wald 2013). With ``k`` the axis of the
+    direction's largest component and ``i, j`` the two others in cyclic order after it,
+    a point ``p`` maps to ``(q_i - s_i q_k, q_j - s_j q_k, q_k / d_k)`` with ``q = p - o``
+    and ``s = d / d_k``. Returns the origin, which axis is ``k`` (``on_x``, ``on_y``;
+    z where neither), ``s_i``, ``s_j`` and ``1 / d_k``."""
     ox, oy, oz, dx, dy, dz = ray
     ax, ay, az = jnp.abs(dx), jnp.abs(dy), jnp.abs(dz)
     on_x = (ax >= ay) & (ax >= az)
     on_y = ~on_x & (ay >= az)
     inv = 1.0 / jnp.where(on_x, dx, jnp.where(on_y, dy, dz))  # never 0: the largest component
-    # The other two axes, in cyclic order after the largest: (y, z), (z, x) or (x, y).
-    sx = jnp.where(on_x, dy, jnp.where(on_y, dz, dx)) * inv
-    sy = jnp.where(on_x, dz, jnp.where(on_y, dx, dy)) * inv
-    one, zero = jnp.ones_like(inv), jnp.zeros_like(inv)
-
-    def row(kx, ky, kz):  # the value of each axis where the largest axis is x, y or z
-        return tuple(jnp.where(on_x, a, jnp.where(on_y, b, c)) for a, b, c in zip(kx, ky, kz))
-
-    u = row((-sx, one, zero), (zero, -sx, one), (one, zero, -sx))
-    w = row((-sy, zero, one), (one, -sy, zero), (zero, one, -sy))
-    z = row((inv, zero, zero), (zero, inv, zero), (zero, zero, inv))
-    return jax.lax.optimization_barrier((ox, oy, oz, *u, *w, *z))
+    si = jnp.where(on_x, dy, jnp.where(on_y, dz, dx)) * inv
+    sj = jnp.where(on_x, dz, jnp.where(on_y, dx, dy)) * inv
+    return jax.lax.optimization_barrier((ox, oy, oz, on_x, on_y, si, sj, inv))
 
 
 def _tri_test(ray, P, frame):
     """The watertight test of :func:`tri_t`: whether each ray meets each triangle's plane
     inside it, ``hit``, and the ray parameter of that point as ``T / D`` with ``D > 0``
     (no division: the callers compare ``T`` with ``D`` times a distance)."""
-    ox, oy, oz, ux, uy, uz, wx, wy, wz, zx, zy, zz = ray_frame(ray) if frame is None else frame
+    ox, oy, oz, on_x, on_y, si, sj, inv = ray_frame(ray) if frame is None else frame
 
     def project(p):
         X, Y, Z = P[p + "x"] - ox, P[p + "y"] - oy, P[p + "z"] - oz
-        return ux * X + uy * Y + uz * Z, wx * X + wy * Y + wz * Z, zx * X + zy * Y + zz * Z
+        qk = jnp.where(on_x, X, jnp.where(on_y, Y, Z))
+        qi = jnp.where(on_x, Y, jnp.where(on_y, Z, X))
+        qj = jnp.where(on_x, Z, jnp.where(on_y, X, Y))
+        return qi - si * qk, qj - sj * qk, inv * qk
 
     def edge(px, py, qx, qy):  # twice the 2D cross product p x q; edge(q, p) == -edge(p, q) exactly
         return (px * qy - py * qx) - (qx * py - qy * px)
