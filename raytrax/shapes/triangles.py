@@ -10,7 +10,6 @@ import math
 from typing import ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -115,7 +114,7 @@ def ray_frame(ray):
     inv = 1.0 / jnp.where(on_x, dx, jnp.where(on_y, dy, dz))  # never 0: the largest component
     si = jnp.where(on_x, dy, jnp.where(on_y, dz, dx)) * inv
     sj = jnp.where(on_x, dz, jnp.where(on_y, dx, dy)) * inv
-    return jax.lax.optimization_barrier((ox, oy, oz, on_x, on_y, si, sj, inv))
+    return ox, oy, oz, on_x, on_y, si, sj, inv
 
 
 def _tri_test(ray, P, frame):
@@ -138,7 +137,7 @@ def _tri_test(ray, P, frame):
     Bx, By, Bz = project("b")
     Cx, Cy, Cz = project("c")
     U, V_, W = edge(Bx, By, Cx, Cy), edge(Cx, Cy, Ax, Ay), edge(Ax, Ay, Bx, By)
-    inside = ((U >= 0) & (V_ >= 0) & (W >= 0)) | ((U <= 0) & (V_ <= 0) & (W <= 0))
+    inside = (jnp.minimum(jnp.minimum(U, V_), W) >= 0) | (jnp.maximum(jnp.maximum(U, V_), W) <= 0)
     det = U + V_ + W
     T = U * Az + V_ * Bz + W * Cz
     neg = det < 0
@@ -151,8 +150,8 @@ def tri_t(ray, P, tmin, frame=None):
     ``frame``: the rays' :func:`ray_frame`, where a loop over many triangles computes
     it once (else it is computed here).
 
-    Watertight: the vertices are mapped into the ray's frame (:func:`ray_frame`, once
-    per ray) and the ray is inside where the three 2D edge functions agree in sign
+    Watertight: the vertices are mapped into the ray's frame (:func:`ray_frame`) and
+    the ray is inside where the three 2D edge functions agree in sign
     (zero counts as inside). A vertex shared by two triangles maps to the same point in
     both, and each edge function is written so that it rounds to exactly the negation
     of itself with the edge's ends swapped (with or without fused multiply-adds), so a
