@@ -26,7 +26,8 @@ Split of the work:
   left opens its next node (a ``(rays, BRANCH)`` slab test of the node's
   children), and a ray with a leaf to visit (one of a node of leaves opened in
   the same step included) tests it (gathering its ``LEAF`` triangles: a
-  ``(rays, LEAF)`` Moeller-Trumbore tile), until no ray has
+  ``(rays, LEAF)`` tile of the watertight test of :func:`raytrax.shapes.tri_t`,
+  whose per-ray frame is computed once per query), until no ray has
   a node left that could hold a nearer hit (closest hit) or that overlaps its
   segment (shadow crossings). Rays are masked, and compacted once few are left,
   so the few rays that take many steps do not cost a full-width step each. A
