@@ -82,7 +82,7 @@ def test_rays_through_shared_edges_and_vertices_of_a_height_field_hit_it(k, dtyp
     # Only interior points: a ray through the border of the grid may pass beside it.
     targets = targets[np.max(np.abs(targets[:, [0, 2]]), 1) < 2 - 1e-6]
     # From above, at random positions and from straight above (axis-aligned directions).
-    above = np.concatenate([rng.uniform(-3, 3, size=(targets.shape[0], 3)) * [1, 0, 1] + [0, 4, 0]])
+    above = rng.uniform(-3, 3, size=targets.shape) * [1, 0, 1] + [0, 4, 0]
     for origins, what in ((above, "from random points above"), (targets + [0, 3, 0], "straight down")):
         o, d = _rays_at(targets, origins, dtype)
         _assert_all_hit(scene, o, d, what)
