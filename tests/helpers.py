@@ -9,6 +9,18 @@ import numpy as np
 import raytrax as rt
 
 
+def grid_mesh(k, half, height=None):
+    """A k x k grid of cells over ``[-half, half]^2`` in the xz plane, two triangles each:
+    vertices ``((k + 1)^2, 3)`` (y from ``height(x, z)``, else 0) and faces ``(2 k^2, 3)``;
+    the triangles of a cell, and neighbouring cells, share edges and vertices."""
+    x, z = np.meshgrid(np.linspace(-half, half, k + 1), np.linspace(-half, half, k + 1))
+    y = np.zeros_like(x) if height is None else height(x, z)
+    v = np.stack([x.ravel(), y.ravel(), z.ravel()], 1)
+    i = np.arange(k * (k + 1)).reshape(k, k + 1)[:, :k].ravel()
+    f = np.concatenate([np.stack([i, i + k + 1, i + 1], 1), np.stack([i + 1, i + k + 1, i + k + 2], 1)])
+    return v, f
+
+
 def jit_grad(loss):
     """``jax.grad(loss)`` as one jitted program with raytrax's compiler options: the plain
     gradients that edge tests compare with (an eager ``jax.grad`` compiles the forward and

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
+from helpers import grid_mesh
 
 import raytrax as rt
 from raytrax import bvh as B
@@ -18,12 +19,9 @@ from raytrax import intersect as I
 def _height_field(k, seed=0):
     """A k x k grid of cells over [-2, 2]^2 (two triangles each), rolling heights."""
     rng = np.random.default_rng(seed)
-    x, z = np.meshgrid(np.linspace(-2, 2, k + 1), np.linspace(-2, 2, k + 1))
-    y = 0.3 * np.sin(1.7 * x + 0.4) * np.cos(1.1 * z) + 0.05 * rng.standard_normal(x.shape)
-    v = np.stack([x.ravel(), y.ravel(), z.ravel()], 1)
-    i = np.arange(k * (k + 1)).reshape(k, k + 1)[:, :k].ravel()
-    f = np.concatenate([np.stack([i, i + k + 1, i + 1], 1), np.stack([i + 1, i + k + 1, i + k + 2], 1)])
-    return v, f
+    return grid_mesh(
+        k, 2.0, lambda x, z: 0.3 * np.sin(1.7 * x + 0.4) * np.cos(1.1 * z) + 0.05 * rng.standard_normal(x.shape)
+    )
 
 
 def _scene(v, f, dtype):
