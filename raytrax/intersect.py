@@ -96,8 +96,7 @@ def prepare(scene, cull: bool = True) -> list[Kind]:
     registry order (:data:`raytrax.shapes.KINDS`). Called inside the traced render:
     triangle-family kinds (triangles, tetrahedra, meshes) are merged into one
     triangle list, searched at the place of the first of them. ``cull=False``: no
-    kind is searched in culled groups (the edge finder, whose many searches would
-    each compile the groups' loop)."""
+    kind is searched in culled groups (brute force, as a reference)."""
     kinds = []
     merged = False
     for spec in S.KINDS:

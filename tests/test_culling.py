@@ -159,3 +159,26 @@ def test_vmap_over_lights_equals_a_loop():
     for b, x in zip(batch, ps):
         np.testing.assert_allclose(b, np.asarray(render(x)), rtol=1e-6, atol=1e-7)
     assert np.ptp(batch, axis=0).max() > 1e-3  # the lights' moves change the image
+
+
+def test_edge_records_equal_the_brute_force_ones():
+    """The edge finder's records (closest hit, first and last occluder towards each light,
+    level by level of the specular chain) use the culled search too: the same records."""
+    from raytrax.edges.prims import build_prims
+    from raytrax.edges.records import records
+
+    s = _scene(width=16, height=12)
+    jj, ii = np.meshgrid(np.arange(48) + 0.5, np.arange(36) + 0.5)
+    xy = jnp.asarray(np.stack([jj.ravel(), ii.ravel()]) / 3.0, jnp.float32)
+
+    def rec(cull):
+        kinds = I.prepare(s, cull=cull)
+        assert any(k.groups is not None for k in kinds) == cull
+        P, off = build_prims(s)
+        return records(s, kinds, off, P, xy, 16, 12, 2)
+
+    got, want = jax.jit(rec, static_argnums=0)(True), jax.jit(rec, static_argnums=0)(False)
+    for name, a, b in zip(got._fields, got, want):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+    assert np.any(np.asarray(got.hit) >= 0) and np.any(np.asarray(got.first) >= 0)
+    assert np.any(np.asarray(got.hit[1]) >= 0)  # the mirrors' reflections reach a second level

@@ -129,7 +129,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     S = Gw * Gh
     h = 1.0 / n
     sg = jax.lax.stop_gradient(scene)
-    kinds = prepare(sg, cull=False)
+    kinds = prepare(sg)
     P_sg, off = build_prims(sg)
     ns = off["ns"]
 

@@ -51,7 +51,7 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
         scene = jax.lax.stop_gradient(scene)
     sel = None if light is None else jnp.broadcast_to(jnp.asarray(light, jnp.int32), xy.shape[1:])
     spread = cone_spread(scene.camera, st.height, n)
-    kinds = prepare(scene, cull=False)
+    kinds = prepare(scene)
 
     def one(x, s):
         return trace(scene, kinds, x, spread, opts, s).T
