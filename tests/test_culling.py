@@ -10,6 +10,8 @@ import numpy as np
 
 import raytrax as rt
 from raytrax import intersect as I
+from raytrax.edges.prims import build_prims
+from raytrax.edges.records import records
 
 
 def _scene(n=90, seed=0, width=12, height=9):
@@ -164,11 +166,8 @@ def test_vmap_over_lights_equals_a_loop():
 def test_edge_records_equal_the_brute_force_ones():
     """The edge finder's records (closest hit, first and last occluder towards each light,
     level by level of the specular chain) use the culled search too: the same records."""
-    from raytrax.edges.prims import build_prims
-    from raytrax.edges.records import records
-
     s = _scene(width=16, height=12)
-    jj, ii = np.meshgrid(np.arange(48) + 0.5, np.arange(36) + 0.5)
+    jj, ii = np.meshgrid(np.arange(48) + 0.5, np.arange(36) + 0.5)  # 3 x 3 positions per pixel
     xy = jnp.asarray(np.stack([jj.ravel(), ii.ravel()]) / 3.0, jnp.float32)
 
     def rec(cull):
