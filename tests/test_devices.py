@@ -40,10 +40,16 @@ def test_default_devices_are_the_cpu_devices_up_to_the_tiles():
     assert cpu_devices_in_use() == jax.local_device_count()  # the CPU backend (conftest)
 
 
-def test_edge_mode_is_sharded_by_default_only_on_large_grids():
+def test_edge_mode_is_sharded_by_default_only_on_large_grids_within_the_memory_bound():
     import dataclasses
 
-    from raytrax.renderer.api import EDGE_SHARD_SAMPLES, cpu_devices_in_use, default_devices
+    from raytrax.renderer.api import (
+        EDGE_SHARD_MAX_BYTES,
+        EDGE_SHARD_MIN_SAMPLES,
+        cpu_devices_in_use,
+        default_devices,
+        edge_shard_bytes,
+    )
 
     st = rt.load_scene(os.path.join(os.path.dirname(__file__), "..", "scenes", "tiny.toml")).settings
     n = cpu_devices_in_use()
@@ -52,14 +58,24 @@ def test_edge_mode_is_sharded_by_default_only_on_large_grids():
     assert default_devices(small, 16384, edge_gradients=True) == 1
     assert default_devices(small, 16384, edge_gradients=False) == min(n, 3)  # tiles of 64 pixels
     assert default_devices(dataclasses.replace(small, spp=4), 16384, edge_gradients=False) == 1  # one tile
-    mid = dataclasses.replace(st, width=160, height=120, spp=16)  # 307,200 samples
-    big = dataclasses.replace(st, width=320, height=240, spp=64)  # 4,915,200 samples
-    lo, hi = EDGE_SHARD_SAMPLES
-    assert 16 * 12 * 256 < lo <= 160 * 120 * 16 < hi <= 320 * 240 * 64
+    mid = dataclasses.replace(st, width=160, height=120, spp=16, max_depth=6)  # 307,200 samples
+    assert 16 * 12 * 256 < EDGE_SHARD_MIN_SAMPLES <= 160 * 120 * 16
     assert default_devices(mid, 16384, edge_gradients=True) == n
     assert default_devices(mid, 1 << 20, edge_gradients=True) == 1  # one tile of samples
-    assert default_devices(big, 16384, edge_gradients=True) == 1  # each device would hold every record
-    assert default_devices(big, 16384, edge_gradients=False) == n
+    # 320 x 240, spp 64 (4,915,200 samples): the devices beyond the first stay within the
+    # memory bound. With one light and 107 objects' ids, each costs about 0.3 GiB at depth
+    # 0 (three fit the bound) and 0.8 GiB at depth 6 (one fits); at depth 6 with four
+    # lights, or with a mesh's 10^5 ids (int32 records), more than the bound (none fits).
+    shallow = dataclasses.replace(st, width=320, height=240, spp=64, max_depth=0)
+    deep = dataclasses.replace(shallow, max_depth=6)
+    assert 3 * edge_shard_bytes(shallow, 1, 700) <= EDGE_SHARD_MAX_BYTES
+    assert edge_shard_bytes(deep, 1, 700) <= EDGE_SHARD_MAX_BYTES < 2 * edge_shard_bytes(deep, 1, 700)
+    assert EDGE_SHARD_MAX_BYTES < min(edge_shard_bytes(deep, 4, 700), edge_shard_bytes(deep, 1, 10**5))
+    assert default_devices(shallow, 16384, True, lights=1, ids=700) == min(n, 4)
+    assert default_devices(deep, 16384, True, lights=1, ids=700) == 2
+    assert default_devices(deep, 16384, True, lights=4, ids=700) == 1
+    assert default_devices(deep, 16384, True, lights=1, ids=10**5) == 1
+    assert default_devices(deep, 16384, edge_gradients=False) == n
 
 
 _PROBE = "import raytrax, jax; print(jax.local_device_count())"

@@ -1,5 +1,6 @@
-"""The packed form of edge-mode sample records (raytrax.edges.records): one int32 array
-that unpacks to the same records, field by field."""
+"""The packed and the compact forms of edge-mode sample records (raytrax.edges.records):
+one int32 array that unpacks to the same records, field by field; small dtypes that widen
+back to them."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from raytrax.edges import Records
-from raytrax.edges.records import pack_records, packed_rows, unpack_records
+from raytrax.edges.records import compact_records, pack_records, packed_rows, unpack_records, widen
 
 
 @pytest.mark.parametrize("depth, lights", [(1, 0), (1, 2), (3, 1)])
@@ -37,3 +38,23 @@ def test_pack_then_unpack_gives_the_same_records(depth, lights):
 def test_unpack_refuses_an_array_of_the_wrong_size():
     with pytest.raises(ValueError, match="expected 5 for depth 1, 1 lights"):
         unpack_records(jnp.zeros((6, 2), jnp.int32), 1, 1)
+
+
+@pytest.mark.parametrize("ids", [100, 40000])
+def test_compact_records_widen_back_to_the_records(ids):
+    """Compact records (int16 ids where the scene's ids fit, else int32; the pattern cell
+    int8) widen back to the int32 records, sentinels (-1, -2) included."""
+    rng = np.random.default_rng(0)
+    D, L, M = 3, 2, 50
+    r = Records(
+        jnp.asarray(rng.integers(-2, ids, (D, M)), jnp.int32),
+        jnp.asarray(rng.integers(0, 2, (D, M)) == 1),
+        jnp.asarray(rng.integers(-1, ids, (D, L, M)), jnp.int32),
+        jnp.asarray(rng.integers(-1, ids, (D, L, M)), jnp.int32),
+        jnp.asarray(rng.integers(0, 2, (D, M)), jnp.int32),
+    )
+    c = compact_records(r, ids)
+    assert c.hit.dtype == (jnp.int16 if ids < 32767 else jnp.int32) and c.cell.dtype == jnp.int8
+    for name, a, b in zip(Records._fields, r, c, strict=True):
+        assert widen(b).dtype == a.dtype, name
+        np.testing.assert_array_equal(np.asarray(widen(b)), np.asarray(a), err_msg=name)

@@ -108,19 +108,50 @@ def hit_cell(scene, kinds, off, gid, o, d, t, mat):
     return jnp.where(gid >= 0, pattern_cell(mats, mat, uv), 0)
 
 
-def records(scene, kinds, off, P: Prims, xy, width, height, depth, devices: int = 1) -> Records:
+def records(scene, kinds, off, P: Prims, xy, width, height, depth, devices: int = 1, compact: bool = False) -> Records:
     """:class:`Records` of the camera rays through image positions ``xy (2, M)``;
     ``scene`` and ``P`` without gradient, ``kinds = prepare(scene)``. More than
     ``RECORD_TILE`` rays are recorded in equal tiles of at most that many
     (``lax.map``), so that memory holds one tile's rays, not every sample's;
     ``devices > 1``: at least :data:`TILES_PER_DEVICE` tiles per device, dealt to
     the devices in turn, so that a costly image region (a glass ball's long
-    chains) is shared between them."""
+    chains) is shared between them. ``compact``: the fields in the smallest dtypes
+    that hold them (:func:`compact_records`; a whole grid's records are large, and
+    sharded, every device holds them all); :func:`widen` restores int32."""
     M = xy.shape[1]
     n, c = equal_chunks(M, RECORD_TILE, devices * TILES_PER_DEVICE if devices > 1 else 1)
-    return map_chunks(
-        lambda x: _records(scene, kinds, off, P, x, width, height, depth), xy, M, n, c, devices=devices, deal=True
-    )
+    ids = P.mat.shape[0]
+
+    def one(x):
+        r = _records(scene, kinds, off, P, x, width, height, depth)
+        return compact_records(r, ids) if compact else r
+
+    return map_chunks(one, xy, M, n, c, devices=devices, deal=True)
+
+
+def _id_dtype(ids: int):
+    return jnp.int16 if ids < jnp.iinfo(jnp.int16).max else jnp.int32
+
+
+def compact_bytes(lights: int, ids: int) -> int:
+    """Bytes per sample and chain level of :func:`compact_records` (``lights`` lights,
+    ``ids`` global primitive ids)."""
+    w = jnp.dtype(_id_dtype(ids)).itemsize
+    return w * (1 + 2 * lights) + 2  # hit, first and last per light; refr and cell a byte each
+
+
+def compact_records(r: Records, ids: int) -> Records:
+    """Records ``r`` of a scene of ``ids`` global primitive ids with its primitive
+    fields (``hit``, ``first``, ``last``) as int16 where ``ids`` fit (else int32) and
+    ``cell`` as int8: a third to a half of the int32 records' bytes. Comparing
+    compact records with each other is comparing the records."""
+    small = _id_dtype(ids)
+    return Records(r.hit.astype(small), r.refr, r.first.astype(small), r.last.astype(small), r.cell.astype(jnp.int8))
+
+
+def widen(x):
+    """An integer array of (compact) records as int32; a boolean one as it is."""
+    return x if x.dtype == jnp.bool_ else x.astype(jnp.int32)
 
 
 def _records(scene, kinds, off, P: Prims, xy, width, height, depth) -> Records:

@@ -19,7 +19,7 @@ from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import build_prims
-from .records import object_key, pack_records, packed_rows, records, unpack_records
+from .records import object_key, pack_records, packed_rows, records, unpack_records, widen
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -133,14 +133,16 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     P_sg, off = build_prims(sg)
     ns = off["ns"]
 
-    def rec_at(x, devices=1):
-        return records(sg, kinds, off, P_sg, x, width, height, D, devices)
+    def rec_at(x, devices=1, compact=False):
+        return records(sg, kinds, off, P_sg, x, width, height, D, devices, compact)
 
     dt = scene.dtype
     jj, ii = jnp.meshgrid(jnp.arange(Gw), jnp.arange(Gh), indexing="xy")
     xy = jnp.stack([(jj.ravel().astype(dt) + 0.5) / n, (ii.ravel().astype(dt) + 0.5) / n])
+    # The grid's records are compact (int16 ids where they fit): compared as they are,
+    # widened to int32 where gathered for the packed pairs and events.
     with jax.named_scope("edge_records"):
-        R = rec_at(xy, eo.devices)
+        R = rec_at(xy, eo.devices, compact=True)
     L = R.first.shape[1]
     npairs = Gh * (Gw - 1) + (Gh - 1) * Gw
 
@@ -174,7 +176,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     valid = jnp.arange(Kp, dtype=jnp.int32) < n_differ
 
     def sides(x):  # (..., S) -> (..., Kp) at the first and at the second sample of each pair
-        return x[..., ca], x[..., cb]
+        return widen(x[..., ca]), widen(x[..., cb])
 
     ha, hb = sides(R.hit)
     ra, rb = sides(R.refr)
@@ -247,12 +249,12 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
         level = jnp.where(vis, lv[pair], jnp.stack(ls)[k_ev, pair])
     else:
         level = lv[pair]
-    chain, refr = R.hit[:, ea], R.refr[:, ea]
+    chain, refr = widen(R.hit[:, ea]), R.refr[:, ea]
     A = at_level(chain, level)
-    B = R.hit[level, eb]
+    B = widen(R.hit[level, eb])
     if L:
-        fa, la = R.first[level, k_ev, ea], R.last[level, k_ev, ea]
-        fb, lb = R.first[level, k_ev, eb], R.last[level, k_ev, eb]
+        fa, la = widen(R.first[level, k_ev, ea]), widen(R.last[level, k_ev, ea])
+        fb, lb = widen(R.first[level, k_ev, eb]), widen(R.last[level, k_ev, eb])
         occ = jnp.where(j_ev == 0, la, jnp.where(j_ev == 1, fa, jnp.where(j_ev == 2, lb, fb)))
     else:
         fa = la = fb = lb = occ = jnp.zeros_like(A)
@@ -451,7 +453,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             )
             ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
             ib = jnp.clip(ia + jnp.where(a[0] > 0, 1, Gw), 0, S - 1)
-            at = jax.tree_util.tree_map(lambda v: v[..., jnp.concatenate([ia, ib])], R)
+            at = jax.tree_util.tree_map(lambda v: widen(v[..., jnp.concatenate([ia, ib])]), R)
             # Compared on what makes this event: the chain prefix, the hit at its
             # level and, for a shadow edge, its light's occluders there.
             lv2 = jnp.tile(sd["lv"], 2)

@@ -9,6 +9,8 @@ import jax
 
 from ..compile_options import top_level
 from ..edges import EdgeOptions
+from ..edges.prims import id_offsets
+from ..edges.records import compact_bytes
 from ..memory import release_by_default
 from ..scene import Scene, Settings
 from .edge_mode import render_edges
@@ -19,13 +21,29 @@ from .tiles import render_image, render_image_jit
 release_by_default()
 
 
-# Edge mode is sharded by default over grids of this many samples (at least, below).
-# Sharded, its program compiles 15-20 % longer (5-9 s on a 2-core CPU) and a call takes
-# 10-30 % less time: below about 10^5 samples the saving is too small to repay the
-# compile within a fit's few dozen calls. Each device holds the records of the whole
-# grid, so past about 2 million samples sharding costs more memory than it saves time
-# (docs/gradients.md).
-EDGE_SHARD_SAMPLES = (1 << 17, 1 << 21)
+# Edge mode is sharded by default over grids of at least this many samples: sharded,
+# its program compiles 15-20 % longer (5-9 s on a 2-core CPU) and a call takes 10-40 %
+# less time; below about 10^5 samples the saving is too small to repay the compile
+# within a fit's few dozen calls.
+EDGE_SHARD_MIN_SAMPLES = 1 << 17
+# ... and only while the memory that each further device costs stays within this many
+# bytes in all: every device holds the records of the whole grid and pairs its samples
+# (:func:`edge_shard_bytes`).
+EDGE_SHARD_MAX_BYTES = 1 << 30
+
+
+def edge_shard_bytes(settings: Settings, lights: int, ids: int) -> int:
+    """Estimated memory (bytes) that each device beyond the first adds to an edge-mode
+    render of ``settings`` with ``lights`` lights and ``ids`` primitive ids (a box
+    counts its faces): per grid sample, the compact records of its ``max_depth + 1``
+    chain levels (:func:`raytrax.edges.records.compact_bytes`), twice (the gathered
+    copy and its reordering), and about 56 bytes of pairing and positions. Fitted to
+    the peak resident memory of ``value_and_grad`` at 320 x 240, spp 64 on two devices
+    against one (``benchmarks/bench_edges.py``): +0.33 GiB for ``scenes/edge_sphere.toml``
+    (depth 0, one light), +0.74 GiB for ``scenes/glass_over_boxes.toml`` (depth 6,
+    one light); the estimate gives 0.33 and 0.77 GiB."""
+    samples = settings.width * settings.height * settings.spp
+    return samples * (56 + 2 * (settings.max_depth + 1) * compact_bytes(lights, ids))
 
 
 def cpu_devices_in_use() -> int:
@@ -34,16 +52,20 @@ def cpu_devices_in_use() -> int:
     return jax.local_device_count() if jax.default_backend() == "cpu" else 1
 
 
-def default_devices(settings: Settings, tile_rays: int, edge_gradients: bool) -> int:
-    """The devices a render of ``settings`` (a scene's :class:`~raytrax.Settings`) shards
-    over when ``devices=None``: the CPU's devices (:func:`cpu_devices_in_use`), at most
-    one per tile of ``tile_rays`` camera rays; with ``edge_gradients``, one unless the
-    grid's samples (``width * height * spp``) are within :data:`EDGE_SHARD_SAMPLES`."""
+def default_devices(settings: Settings, tile_rays: int, edge_gradients: bool, lights: int = 1, ids: int = 1) -> int:
+    """The devices a render of ``settings`` (a scene's :class:`~raytrax.Settings`, with
+    ``lights`` lights and ``ids`` primitive ids) shards over when ``devices=None``: the CPU's devices
+    (:func:`cpu_devices_in_use`), at most one per tile of ``tile_rays`` camera rays;
+    with ``edge_gradients``, one below :data:`EDGE_SHARD_MIN_SAMPLES` grid samples
+    (``width * height * spp``), else as many as keep the devices beyond the first
+    within :data:`EDGE_SHARD_MAX_BYTES` of memory (:func:`edge_shard_bytes` each)."""
     pixels = settings.width * settings.height
     if edge_gradients:
         samples = pixels * settings.spp
-        lo, hi = EDGE_SHARD_SAMPLES
-        return min(cpu_devices_in_use(), math.ceil(samples / tile_rays)) if lo <= samples < hi else 1
+        if samples < EDGE_SHARD_MIN_SAMPLES:
+            return 1
+        fit = 1 + EDGE_SHARD_MAX_BYTES // max(1, edge_shard_bytes(settings, lights, ids))
+        return max(1, min(cpu_devices_in_use(), math.ceil(samples / tile_rays), fit))
     per_tile = max(1, min(pixels, tile_rays // settings.spp))
     return min(cpu_devices_in_use(), math.ceil(pixels / per_tile))
 
@@ -79,8 +101,10 @@ def render(
     ``jax.devices()`` with ``jax.shard_map`` (same image, gradients summed over
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
-    tile, and with ``edge_gradients=True`` only for grids of 2^17 to 2^21 samples
-    (:func:`default_devices`); elsewhere on the default device.
+    tile, and with ``edge_gradients=True`` only for grids of at least 2^17 samples,
+    over as many devices as keep the extra memory within 1 GiB (each device holds
+    the records of every sample: :func:`default_devices`); elsewhere on the default
+    device.
     The image is returned on ``jax.devices()[0]`` however many rendered it (where a
     one-device render's image is, unless jax's default device was changed), so
     images rendered over different numbers of devices combine directly.
@@ -116,7 +140,7 @@ def render(
     }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
     if devices is None:
-        n_dev = default_devices(st, tile_rays, edge_gradients)
+        n_dev = default_devices(st, tile_rays, edge_gradients, scene.n_lights, id_offsets(scene)["total"])
     elif devices == "all":
         n_dev = jax.device_count()
     elif isinstance(devices, int) and 1 <= devices <= jax.device_count():
