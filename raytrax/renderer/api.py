@@ -29,7 +29,7 @@ EDGE_SHARD_MIN_SAMPLES = 1 << 17
 # ... and only while the memory that each further device costs stays within this many
 # bytes in all: every device holds the records of the whole grid and pairs its samples
 # (:func:`edge_shard_bytes`).
-EDGE_SHARD_MAX_BYTES = 1 << 30
+EDGE_SHARD_MAX_BYTES = 1 << 29
 
 
 def edge_shard_bytes(settings: Settings, lights: int, ids: int) -> int:
@@ -102,7 +102,7 @@ def render(
     devices); ``1`` renders on the default device. ``None`` (default): on the CPU,
     over its devices (one per core: :mod:`raytrax.cpu_devices`), at most one per
     tile, and with ``edge_gradients=True`` only for grids of at least 2^17 samples,
-    over as many devices as keep the extra memory within 1 GiB (each device holds
+    over as many devices as keep the extra memory within 0.5 GiB (each device holds
     the records of every sample: :func:`default_devices`); elsewhere on the default
     device.
     The image is returned on ``jax.devices()[0]`` however many rendered it (where a
