@@ -196,8 +196,13 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
     footprint = needs_footprint(scene.materials, st.filter_textures)
     r = 11 if footprint else 9
+    # The rays' states depend on the camera, the geometry and the materials, never on
+    # the lights or the environment: a gradient with respect to lights alone leaves
+    # the queue without a tangent (no tangent of every ray computed, stored and
+    # transposed for nothing; under jax.vmap, not batched either).
     seed = tangent_seed(scene, dt)
-    queue = (jnp.zeros((2, r, B, cap), dt) + seed, jnp.full((2, B, cap), n, jnp.int32))
+    ray_seed = tangent_seed((scene.camera, scene.materials, scene.prims, scene.bvh), dt)
+    queue = (jnp.zeros((2, r, B, cap), dt) + ray_seed, jnp.full((2, B, cap), n, jnp.int32))
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
 
