@@ -127,9 +127,10 @@ def render(
     ``jax.vmap`` a batch over what only colours a hit's light (light parameters,
     material colours and Phong terms, texture colours, background and ambient) is
     batched inside the render (camera, reflected and refracted rays and their hits
-    are shared: a quarter to a third of a loop's cost per image); a batch over anything that moves rays is
-    rendered as a ``lax.map`` of single renders, at a loop's cost per image (see
-    ``docs/scaling.md``).
+    are shared: a quarter to two thirds of a loop's cost per image); a batch over anything that moves rays is
+    rendered as a ``lax.map`` of single renders, at a loop's cost per image. Under
+    ``jax.vmap`` of a gradient everything is batched inside: a third of a loop's
+    cost over lights, 1.6-2 times it over anything else (see ``docs/scaling.md``).
     """
     over = {
         k: v
