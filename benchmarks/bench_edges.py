@@ -24,7 +24,8 @@ loss sees).
   on ``glass`` (a glass ball, ior 1.5, over a 10 x 10 checker of thin boxes with
   five small balls behind it, one point light, depth 6: the loss is the MSE against
   the image at ior 1.5, differentiated with respect to the ior at 1.30) and on the
-  scenes ``edge_occluders`` and ``edge_sphere`` (the loss above);
+  scenes ``edge_occluders`` and ``edge_sphere`` (the loss above); ``--calls-devices N``
+  renders on ``N`` devices instead of ``render``'s default;
 * cost: compile time, steady time (median of 3) and XLA's temporary memory
   (``compiled.memory_analysis()``) of ``value_and_grad`` with and without edge
   gradients at the same spp, and of the forward render. Ratios are what to
@@ -187,8 +188,9 @@ def glass_scene(width, height, spp, ior, depth=6):
     return rt.with_parameters(s, {"material.glass.ior": ior})
 
 
-def one_call(name, W, H, spp, edge):
-    """First and steady time of ``value_and_grad`` and peak RSS, in this process (a child)."""
+def one_call(name, W, H, spp, edge, devices=None):
+    """First and steady time of ``value_and_grad`` and peak RSS, in this process (a child);
+    ``devices``: the renders' ``devices`` (None: their default)."""
     import resource
 
     if name == "glass":
@@ -197,7 +199,7 @@ def one_call(name, W, H, spp, edge):
 
         def loss_glass(x):
             s = rt.with_parameters(sc, {"material.glass.ior": x})
-            return jnp.mean((rt.render(s, edge_gradients=edge) - target) ** 2)
+            return jnp.mean((rt.render(s, edge_gradients=edge, devices=devices) - target) ** 2)
 
         loss, q0 = loss_glass, jnp.asarray(1.3, sc.dtype)
     else:
@@ -207,14 +209,14 @@ def one_call(name, W, H, spp, edge):
             lo, q0 = make_loss(sc)
 
             def loss_scene(q):
-                return lo(q, edge_gradients=edge)
+                return lo(q, edge_gradients=edge, devices=devices)
 
         else:  # any other scene: every light position and object's geometry, a smooth-weighted image sum
             wgt = jnp.asarray(smooth_weights(H, W), sc.dtype)
             q0 = {k: v for k, v in rt.parameters(sc).items() if k.startswith("object[") or k.endswith("].position")}
 
             def loss_scene(q):
-                return jnp.mean(wgt * rt.render(rt.with_parameters(sc, q), edge_gradients=edge))
+                return jnp.mean(wgt * rt.render(rt.with_parameters(sc, q), edge_gradients=edge, devices=devices))
 
         loss = loss_scene
 
@@ -247,7 +249,8 @@ def calls(a):
     for name in a.calls.split(","):
         out = {}
         for edge in (False, True):
-            cmd = [sys.executable, os.path.abspath(__file__), "--one", f"{name},{W},{H},{a.calls_spp},{int(edge)}"]
+            one = f"{name},{W},{H},{a.calls_spp},{int(edge)}" + (f",{a.calls_devices}" if a.calls_devices else "")
+            cmd = [sys.executable, os.path.abspath(__file__), "--one", one]
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode:
                 sys.exit(f"{' '.join(cmd[1:])} failed:\n{res.stderr[-3000:]}")
@@ -271,13 +274,15 @@ def main(argv=None):
     ap.add_argument("--calls", default="", help="comma-separated: glass and/or scenes/*.toml names")
     ap.add_argument("--calls-size", default="64x48")
     ap.add_argument("--calls-spp", type=int, default=16)
+    ap.add_argument("--calls-devices", type=int, default=0, help="the renders' devices (0: their default)")
     ap.add_argument("--one", default="", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.one:
         import json
 
-        name, W, H, spp, edge = a.one.split(",")
-        print(json.dumps(one_call(name, int(W), int(H), int(spp), bool(int(edge)))))
+        name, W, H, spp, edge, *dev = a.one.split(",")
+        devices = int(dev[0]) if dev else None
+        print(json.dumps(one_call(name, int(W), int(H), int(spp), bool(int(edge)), devices)))
         return
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}")
     if not a.no_accuracy:

@@ -63,9 +63,9 @@ def test_edge_mode_is_sharded_by_default_only_on_large_grids_within_the_memory_b
     assert default_devices(mid, 16384, edge_gradients=True) == n
     assert default_devices(mid, 1 << 20, edge_gradients=True) == 1  # one tile of samples
     # 320 x 240, spp 64 (4,915,200 samples): the devices beyond the first stay within the
-    # memory bound. With one light and 107 objects' ids, each costs about 0.3 GiB at depth
-    # 0 (one fits the bound) and 0.8 GiB at depth 6 (none fits); more lights, or a mesh's
-    # 10^5 ids (int32 records), cost more.
+    # memory bound. With one light and about 700 primitive ids (107 objects, a box counting
+    # its faces), each costs about 0.3 GiB at depth 0 (one fits the bound) and 0.8 GiB at
+    # depth 6 (none fits); more lights, or a mesh's 10^5 ids (int32 records), cost more.
     shallow = dataclasses.replace(st, width=320, height=240, spp=64, max_depth=0)
     deep = dataclasses.replace(shallow, max_depth=6)
     assert edge_shard_bytes(shallow, 1, 700) <= EDGE_SHARD_MAX_BYTES < 2 * edge_shard_bytes(shallow, 1, 700)
