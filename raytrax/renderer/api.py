@@ -129,8 +129,9 @@ def render(
     batched inside the render (camera, reflected and refracted rays and their hits
     are shared: a quarter to two thirds of a loop's cost per image); a batch over anything that moves rays is
     rendered as a ``lax.map`` of single renders, at a loop's cost per image. Under
-    ``jax.vmap`` of a gradient everything is batched inside: a third of a loop's
-    cost over lights, 1.6-2 times it over anything else (see ``docs/scaling.md``).
+    ``jax.vmap`` of a gradient everything is batched inside: an eighth to a third of
+    a loop's cost over lights or colours, 1.6-2 times it over anything else (see
+    ``docs/scaling.md``).
     """
     over = {
         k: v

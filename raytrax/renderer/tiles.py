@@ -116,10 +116,11 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
 
 
 def _only_shading_batched(in_batched) -> bool:
-    """Whether the batched leaves (``in_batched``: flags of ``(scene, key)``) are all
-    lights, the environment or :data:`raytrax.materials.COLOUR_FIELDS`: then the camera,
-    reflected and refracted rays, their hits and branches are the same for the whole
-    batch, and only the radiance (and a light's shadow rays) differs."""
+    """Whether the flagged leaves (``in_batched``: flags of ``(scene, key)``, the batched
+    leaves or those with a tangent) are all lights, the environment or
+    :data:`raytrax.materials.COLOUR_FIELDS`: then the camera, reflected and refracted
+    rays, their hits and branches are the same for the whole batch (have no tangent),
+    and only the radiance (and a light's shadow rays) differs."""
     scene_b, key_b = in_batched
     rest = eqx.tree_at(
         lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in COLOUR_FIELDS)),
@@ -200,7 +201,14 @@ def render_image(scene: Scene, opts: RenderOptions, key):
         on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
         live_p = [x for x, o in zip(leaves, on) if o]
         live_t = [t for t, o in zip(t_leaves, on) if o]
-        return _jvp_of_live_jit(opts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
+        # Where only colours (and lights, the environment) have a tangent, the colours
+        # are read apart from the fields that decide the children, so that the rays
+        # gain no tangent (as a batch over colours is read, above).
+        flags = jax.tree.unflatten(tdef, list(on))
+        jopts = opts
+        if _only_shading_batched(flags) and any(jax.tree.leaves(flags[0].materials)):
+            jopts = dataclasses.replace(opts, split_material_read=True)
+        return _jvp_of_live_jit(jopts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.ad_checkpoint import checkpoint_name
@@ -33,7 +34,7 @@ from ..branching import any_in_batch
 from ..camera import frame, rays_through
 from ..intersect import closest_hit, occluded, occluder_counts, offset_scale
 from ..lights import LIGHTS
-from ..materials import CHILD_FIELDS, SHADING_MODELS, facing, interface, material_rows, refract
+from ..materials import CHILD_FIELDS, COLOUR_FIELDS, SHADING_MODELS, facing, interface, material_rows, refract
 from ..scene import Scene
 from ..textures import footprint_widths, hit_with_uv_shifts, needs_footprint, surface_color
 from ..tracing import tangent_seed
@@ -196,12 +197,17 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
     footprint = needs_footprint(scene.materials, st.filter_textures)
     r = 11 if footprint else 9
-    # The rays' states depend on the camera, the geometry and the materials, never on
-    # the lights or the environment: a gradient with respect to lights alone leaves
-    # the queue without a tangent (no tangent of every ray computed, stored and
+    # The rays' states depend on the camera, the geometry and the materials' fields
+    # other than their colours, never on the lights, the environment or the colours
+    # (read apart from the fields that decide the children where only colours have a
+    # tangent: tiles.render_image): a gradient with respect to lights or colours alone
+    # leaves the queue without a tangent (no tangent of every ray computed, stored and
     # transposed for nothing; under jax.vmap, not batched either).
     seed = tangent_seed(scene, dt)
-    ray_seed = tangent_seed((scene.camera, scene.materials, scene.prims, scene.bvh), dt)
+    uncoloured = eqx.tree_at(
+        lambda m: tuple(getattr(m, f) for f in COLOUR_FIELDS), scene.materials, replace_fn=lambda _: None
+    )
+    ray_seed = tangent_seed((scene.camera, uncoloured, scene.prims, scene.bvh), dt)
     queue = (jnp.zeros((2, r, B, cap), dt) + ray_seed, jnp.full((2, B, cap), n, jnp.int32))
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
