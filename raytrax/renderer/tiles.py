@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
@@ -17,11 +16,10 @@ from ..chunks import AXIS, equal_chunks, map_leading, over_devices, round_robin,
 from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..masks import any_true
-from ..materials import COLOUR_FIELDS
 from ..scene import Scene
 from ..tracing import tangent_seed
 from .options import RenderOptions
-from .whitted import trace
+from .whitted import ray_part, trace
 
 
 def map_tiles(tile_fn, scene: Scene, xs, n_dev: int, const=None):
@@ -122,11 +120,7 @@ def _only_shading_batched(in_batched) -> bool:
     rays, their hits and branches are the same for the whole batch (have no tangent),
     and only the radiance (and a light's shadow rays) differs."""
     scene_b, key_b = in_batched
-    rest = eqx.tree_at(
-        lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in COLOUR_FIELDS)),
-        scene_b,
-        replace_fn=lambda node: jax.tree.map(lambda _: False, node),
-    )
+    rest = ray_part(scene_b)
     return not any(jax.tree.leaves((rest, key_b)))
 
 

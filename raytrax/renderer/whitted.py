@@ -171,6 +171,20 @@ def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: b
     return contrib, (p_out, rdir, wr, p_in, tdir, wt, cw_hit, spread_r, spread)
 
 
+def ray_part(scene):
+    """``scene`` (or a tree of the same structure, such as flags per leaf) without the
+    leaves that never move a ray: the lights, the environment and
+    :data:`raytrax.materials.COLOUR_FIELDS` (None there). The rays' origins, directions,
+    throughputs and cones depend on the rest only, given that colours are read apart
+    from the fields that decide a hit's children (``RenderOptions.split_material_read``)
+    wherever they vary alone."""
+    return eqx.tree_at(
+        lambda s: (s.light_sets, s.environment, *(getattr(s.materials, f) for f in COLOUR_FIELDS)),
+        scene,
+        replace_fn=lambda _: None,
+    )
+
+
 def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     """Radiance ``(3, n)`` of the camera rays through image positions ``xy (2, n)``
     (in pixels, :func:`raytrax.camera.rays_through`; ``sel (n,)``: see :func:`shade`).
@@ -197,17 +211,11 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
     footprint = needs_footprint(scene.materials, st.filter_textures)
     r = 11 if footprint else 9
-    # The rays' states depend on the camera, the geometry and the materials' fields
-    # other than their colours, never on the lights, the environment or the colours
-    # (read apart from the fields that decide the children where only colours have a
-    # tangent: tiles.render_image): a gradient with respect to lights or colours alone
-    # leaves the queue without a tangent (no tangent of every ray computed, stored and
-    # transposed for nothing; under jax.vmap, not batched either).
+    # A gradient with respect to lights or colours alone leaves the queue without a
+    # tangent (:func:`ray_part`; no tangent of every ray computed, stored and transposed
+    # for nothing; under jax.vmap, not batched either).
     seed = tangent_seed(scene, dt)
-    uncoloured = eqx.tree_at(
-        lambda m: tuple(getattr(m, f) for f in COLOUR_FIELDS), scene.materials, replace_fn=lambda _: None
-    )
-    ray_seed = tangent_seed((scene.camera, uncoloured, scene.prims, scene.bvh), dt)
+    ray_seed = tangent_seed(ray_part(scene), dt)
     queue = (jnp.zeros((2, r, B, cap), dt) + ray_seed, jnp.full((2, B, cap), n, jnp.int32))
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
