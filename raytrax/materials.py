@@ -304,13 +304,10 @@ SHADING_MODELS: dict[str, ShadingModel] = {m.name: m for m in (Classic(), Physic
 CHILD_FIELDS = ("transparency", "reflectivity", "ior")
 
 #: The material fields that only colour the light a hit sends back (its own shading):
-#: the colour, every shading model's own terms, the pattern's second colour and the
-#: image textures' texels. Never a ray's direction or throughput.
+#: the colour, every shading model's own terms, the pattern's second colour, scale and
+#: direction, and the image textures' texels. Never a ray's direction or throughput.
 COLOUR_FIELDS = (
     ("color",)
     + tuple(dict.fromkeys(f for m in SHADING_MODELS.values() for f in m.fields))
-    + (
-        "tex_color2",
-        "images",
-    )
+    + ("tex_color2", "tex_scale", "tex_direction", "images")
 )

@@ -274,6 +274,32 @@ def test_textured_sphere_texels():
     assert sum(abs(r.fd) > 1e-6 for r in texel_rows) >= 12  # the visible half of the texels
 
 
+def test_gradients_of_what_only_colours_a_hit_leave_the_rays_alone():
+    """A gradient with respect to colours, patterns (scale, direction, second colour),
+    texels and lights only (the other parameters constants) is computed without
+    differentiating the rays: the render reads those fields apart from the ones that
+    decide a hit's children. It agrees with finite differences as the full matrix does."""
+    from raytrax.renderer.tiles import _only_shading_batched
+
+    s, p, target = setup_g("physical")
+    names = [
+        "material.wall.color",
+        "material.wall.texture.color2",
+        "material.wall.texture.scale",
+        "material.floor.texture.direction",
+        "material.planet.texture.image",
+        "light[0].position",
+        "light[1].intensity",
+    ]
+    sub = {k: p[k] for k in names}
+    moved = rt.with_parameters(s, sub)  # new arrays for the leaves these parameters live in
+    flags = jax.tree.map(lambda a, b: a is not b, s, moved)
+    assert sum(jax.tree.leaves(flags)) >= 6 and _only_shading_batched((flags, False))
+    rep = check_gradients(image_loss(s, target), sub, names=interior(sub), rtol=RTOL, rel_step=REL_STEP)
+    for n in names:
+        assert max(abs(r.fd) for r in rows(rep, n)) > 1e-6, n
+
+
 def test_derivative_at_zero_transparency_is_one_sided():
     """At transparency = 0 the render is only differentiable from above. Report what AD
     gives there against the one-sided (forward) difference."""
