@@ -26,7 +26,8 @@ Mitsuba 3 (``llvm_ad_rgb``) is timed with integrators that run as one LLVM kerne
   (``dr.compress`` / ``dr.eval`` at every depth), for comparison only.
 
 Gradients (``--grad-size``): raytrax's ``eqx.filter_value_and_grad`` of the image
-MSE to 0.5 w.r.t. the light positions and every material's IOR; Mitsuba's
+MSE to 0.5 w.r.t. the light positions and every material's IOR, and w.r.t. the
+light positions alone (the like-for-like row: what Mitsuba differentiates); Mitsuba's
 ``mi.render`` + ``dr.backward`` of the same loss w.r.t. the light positions,
 through ``path`` with ``max_depth`` 2 (direct light only) and through
 ``whitted_kernel`` at ``depth`` (reaches the glass). Mitsuba 3's ``dielectric``
@@ -120,21 +121,24 @@ def rt_forward_fn(scene):
     return lambda: jax.block_until_ready(rt.render(scene))
 
 
-def rt_value_and_grad_fn(scene):
-    """``value_and_grad`` of the image MSE to 0.5 w.r.t. light positions and IORs."""
+def rt_value_and_grad_fn(scene, ior=True):
+    """``value_and_grad`` of the image MSE to 0.5 w.r.t. light positions and IORs
+    (``ior=False``: the light positions only, as Mitsuba's gradients here)."""
     import equinox as eqx
     import jax
     import jax.numpy as jnp
 
     import raytrax as rt
 
+    def where(s):
+        return (s.lights.position, s.materials.ior) if ior else s.lights.position
+
     def loss(params, scene):
-        s = eqx.tree_at(lambda s: (s.lights.position, s.materials.ior), scene, params)
-        return jnp.mean((rt.render(s) - 0.5) ** 2)
+        return jnp.mean((rt.render(eqx.tree_at(where, scene, params)) - 0.5) ** 2)
 
     # The options raytrax's own entry points compile with (rt.compiler_options: faster compiles on CPU).
     vg = eqx.filter_jit(eqx.filter_value_and_grad(loss), compiler_options=rt.compiler_options())
-    params = (scene.lights.position, scene.materials.ior)
+    params = where(scene)
     return lambda: jax.block_until_ready(vg(params, scene))
 
 
@@ -206,7 +210,8 @@ def worker_rt(cfg):
     import jax
 
     scene = _physical(cfg["W"], cfg["H"], cfg["spp"], cfg["depth"])
-    fn = rt_value_and_grad_fn(scene) if cfg["what"] == "grad" else rt_forward_fn(scene)
+    what = cfg["what"]
+    fn = rt_forward_fn(scene) if what == "forward" else rt_value_and_grad_fn(scene, ior=what == "grad")
     out: dict[str, Any] = _first_and_steady(fn, cfg["repeats"])
     out["backend"] = jax.default_backend()
     return out
@@ -249,7 +254,11 @@ def worker_paired(cfg):
     out["forward"] = _rounds(fns, cfg["repeats"])
     if cfg["grad"]:
         gscene = _physical(cfg["gW"], cfg["gH"], spp, depth)
-        fns = {"raytrax": rt_value_and_grad_fn(gscene), "raytrax_forward": rt_forward_fn(gscene)}
+        fns = {
+            "raytrax": rt_value_and_grad_fn(gscene),
+            "raytrax_lights": rt_value_and_grad_fn(gscene, ior=False),
+            "raytrax_forward": rt_forward_fn(gscene),
+        }
         for label in MI_GRAD:
             fns[label] = mi_grad_fn(_mi_scene(gscene, label, MI_GRAD), spp)
         out["grad"] = _rounds(fns, cfg["grad_repeats"])
@@ -438,12 +447,20 @@ def report(res):
         summary["forward"] = {k: ratio(fwd_t, "raytrax", k) for k in mi_fwd}
     if c["grad"]:
         g_t = pr.get("grad") if "error" not in pr else None
-        rows = [("raytrax", "rt_grad", "raytrax (lights + IOR)")] + [
-            (k, "mi_grad_" + k, mi_name(MI_GRAD, k, depth)) for k in MI_GRAD
+        rows = [
+            ("raytrax", "rt_grad", "raytrax (lights + IOR)"),
+            ("raytrax_lights", "rt_grad_lights", "raytrax (lights)"),
         ]
+        rows += [(k, "mi_grad_" + k, mi_name(MI_GRAD, k, depth)) for k in MI_GRAD]
         print(f"\n== value_and_grad of the image MSE, {gW} x {gH}: {c['grad_repeats']} rounds in one process ==")
         table("rt_grad", rows, g_t)
         print("  Mitsuba's dielectric IOR is a non-differentiable scalar in Mitsuba 3: no IOR gradient there.")
+        if g_t and "raytrax_lights" in g_t:  # like for like: light positions only, both renderers
+            summary["grad_lights"] = {k: ratio(g_t, "raytrax_lights", k) for k in MI_GRAD}
+            print(
+                "  raytrax (lights) over Mitsuba, same rounds (median of the per-round ratios): "
+                + ", ".join(f"{fr(v)} {mi_name(MI_GRAD, k, depth)}" for k, v in summary["grad_lights"].items())
+            )
         if g_t:
             summary["grad"] = {k: ratio(g_t, "raytrax", k) for k in MI_GRAD}
             summary["rt_grad_over_forward"] = ratio(g_t, "raytrax", "raytrax_forward")
@@ -556,6 +573,7 @@ def main(argv=None):
         )
     if not args.no_grad:
         fresh["rt_grad"] = run_worker(dict(base, task="rt", what="grad", W=gW, H=gH, repeats=1))
+        fresh["rt_grad_lights"] = run_worker(dict(base, task="rt", what="grad_lights", W=gW, H=gH, repeats=1))
         for label in MI_GRAD:
             fresh["mi_grad_" + label] = run_worker(
                 dict(base, task="mi", what="grad", label=label, W=gW, H=gH, repeats=1), fresh_home=True
