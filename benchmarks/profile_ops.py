@@ -3,10 +3,12 @@
     python benchmarks/profile_ops.py                      # value_and_grad, 320 x 240
     python benchmarks/profile_ops.py --task forward --size 640x480
     python benchmarks/profile_ops.py --top 30
+    python benchmarks/profile_ops.py --params lights        # the light positions only
 
 Scene and loss as in ``bench_speed.py``: ``physical_scene`` of
 ``benchmarks/scenes.py`` (spp 4, depth 6), the image MSE to 0.5 with respect to
-the light positions and every material's IOR. The program is compiled with
+the light positions and every material's IOR (``--params lights``: the light
+positions only). The program is compiled with
 ``rt.compiler_options()``, run twice, then ``--calls`` times under
 ``jax.profiler``. Each event of XLA's worker threads (a kernel, a loop, a
 conditional) is charged its exclusive time (its duration less that of the
@@ -90,6 +92,12 @@ def main():
     ap.add_argument("--depth", type=at_least(0), default=6)
     ap.add_argument("--calls", type=at_least(1), default=3)
     ap.add_argument("--top", type=at_least(0), default=15)
+    ap.add_argument(
+        "--params",
+        choices=("lights+ior", "lights"),
+        default="lights+ior",
+        help="what grad differentiates (bench_speed's rows)",
+    )
     args = ap.parse_args()
     W, H = args.size or ((320, 240) if args.task == "grad" else (640, 480))
 
@@ -100,7 +108,9 @@ def main():
 
     scene = physical_scene(W, H, args.spp, args.depth)
     p = rt.parameters(scene)
-    names = [k for k in p if k.startswith("light[") and k.endswith(".position")] + [k for k in p if k.endswith(".ior")]
+    names = [k for k in p if k.startswith("light[") and k.endswith(".position")]
+    if args.params == "lights+ior":
+        names += [k for k in p if k.endswith(".ior")]
     q0 = {k: p[k] for k in names}
 
     def loss(q):
