@@ -125,7 +125,8 @@ def render(
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``. Under
     ``jax.vmap`` a batch over what only colours a hit's light (light parameters,
-    material colours and Phong terms, texture colours, background and ambient) is
+    material colours and Phong terms, texture colours, pattern scales and directions,
+    background and ambient) is
     batched inside the render (camera, reflected and refracted rays and their hits
     are shared: a quarter to two thirds of a loop's cost per image); a batch over anything that moves rays is
     rendered as a ``lax.map`` of single renders, at a loop's cost per image. Under
