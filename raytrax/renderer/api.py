@@ -126,10 +126,10 @@ def render(
     differentiable with respect to every float leaf of ``scene``. Under
     ``jax.vmap`` a batch over what only colours a hit's light (light parameters,
     material colours and Phong terms, texture colours, pattern scales and directions,
-    background and ambient) is
-    batched inside the render (camera, reflected and refracted rays and their hits
-    are shared: a quarter to two thirds of a loop's cost per image); a batch over anything that moves rays is
-    rendered as a ``lax.map`` of single renders, at a loop's cost per image. Under
+    background and ambient) is batched inside the render (camera, reflected and
+    refracted rays and their hits are shared: a quarter to two thirds of a loop's
+    cost per image); a batch over anything that moves rays is rendered as a
+    ``lax.map`` of single renders, at a loop's cost per image. Under
     ``jax.vmap`` of a gradient everything is batched inside: an eighth to a third of
     a loop's cost over lights or colours, 1.6-2 times it over anything else (see
     ``docs/scaling.md``).
