@@ -101,7 +101,11 @@ def splat_positions(scene: Scene, opts: RenderOptions, xy, needed, spread, pixel
         def tile(acc, args):
             x, on, p, w = args
             f = radiance(x, on)  # (c, 3)
-            return acc.at[:, p].add(jnp.swapaxes(w, 0, 1)[:, :, None] * f[None]), None
+            # The k weighted copies stacked: reverse mode then sums their cotangents
+            # elementwise (a product broadcast over the k images transposes into a
+            # reduction over them, a slow kernel on XLA:CPU).
+            upd = jnp.stack([w[:, j, None] * f for j in range(k)])  # (k, c, 3)
+            return acc.at[:, p].add(upd), None
 
         acc0 = jnp.zeros((k, n_pixels, 3), scene.dtype) + tangent_seed(scene, scene.dtype)
         if several:
