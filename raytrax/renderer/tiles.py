@@ -128,6 +128,17 @@ def _only_shading_batched(in_batched) -> bool:
     return not any(jax.tree.leaves((rest, key_b)))
 
 
+def _shading_options(opts: RenderOptions, flags) -> RenderOptions:
+    """``opts`` for a render whose flagged leaves (``flags`` of ``(scene, key)``, as
+    :func:`_only_shading_batched` takes them) all pass :func:`_only_shading_batched`:
+    where material fields are among them, the colours are read apart from the fields
+    that decide a hit's children, so that the rays stay unflagged (unbatched, without a
+    tangent); else ``opts`` unchanged."""
+    if any(jax.tree.leaves(flags[0].materials)):
+        return dataclasses.replace(opts, split_material_read=True)
+    return opts
+
+
 def _jvp_of_live(opts: RenderOptions, tdef, on, live_p, live_t, dead):
     """JVP of the plain render of ``(scene, key)`` (flattened as ``tdef``) along the
     leaves that ``on`` marks (``live_p``, tangents ``live_t``); the other leaves
@@ -172,11 +183,7 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     def _batched(axis_size, in_batched, scene, key):
         if _only_shading_batched(in_batched):
             axes = jax.tree.map(lambda b: 0 if b else None, in_batched)
-            # A batch over material colours reads them apart from the fields that
-            # decide the children (else one batched table read batches every ray).
-            inside = opts
-            if any(jax.tree.leaves(in_batched[0].materials)):
-                inside = dataclasses.replace(opts, split_material_read=True)
+            inside = _shading_options(opts, in_batched)  # else one batched table read batches every ray
             return jax.vmap(lambda s, k: _render_image_jit(s, inside, k), in_axes=axes)(scene, key), True
         leaves, tdef = jax.tree.flatten((scene, key))
         flags = jax.tree.leaves(in_batched)
@@ -199,13 +206,10 @@ def render_image(scene: Scene, opts: RenderOptions, key):
         on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
         live_p = [x for x, o in zip(leaves, on) if o]
         live_t = [t for t, o in zip(t_leaves, on) if o]
-        # Where only colours (and lights, the environment) have a tangent, the colours
-        # are read apart from the fields that decide the children, so that the rays
-        # gain no tangent (as a batch over colours is read, above).
+        # Where only colours (and lights, the environment) have a tangent, the rays
+        # gain none (read as a batch over colours is, above).
         flags = jax.tree.unflatten(tdef, list(on))
-        jopts = opts
-        if _only_shading_batched(flags) and any(jax.tree.leaves(flags[0].materials)):
-            jopts = dataclasses.replace(opts, split_material_read=True)
+        jopts = _shading_options(opts, flags) if _only_shading_batched(flags) else opts
         return _jvp_of_live_jit(jopts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
