@@ -65,13 +65,16 @@ def edge_value(scene, P: Prims, ns, ev: Events, xy, width, height, feature=False
     o, d = chain_ray(scene, P, ns, ev, xy, width, height, skip)
     ta = first_t(P, ns, ev.p1, o, d)
     tb = first_t(P, ns, ev.p2, o, d)
-    shadow = ev.typ == SHADOW
-    p = o + ta[None] * d
-    li = jnp.clip(ev.light, 0, P.light.shape[1] - 1)
-    L = P.light[:, li]
-    toward = V.vsel(P.ldir[li], V.normalize(-L), V.normalize(L - p))
-    o2 = V.vsel(shadow, p, o)
-    d2 = V.vsel(shadow, toward, d)
+    if scene.n_lights:
+        shadow = ev.typ == SHADOW
+        p = o + ta[None] * d
+        li = jnp.clip(ev.light, 0, P.light.shape[1] - 1)
+        L = P.light[:, li]
+        toward = V.vsel(P.ldir[li], V.normalize(-L), V.normalize(L - p))
+        o2 = V.vsel(shadow, p, o)
+        d2 = V.vsel(shadow, toward, d)
+    else:  # no light, no shadow edge
+        o2, d2 = o, d
     m, f = miss(P, ns, jnp.where(ev.typ == MISS, ev.p1, ev.p2), o2, d2)
     depth = ev.typ == DEPTH
     G = jnp.where(depth, ta - tb, m)

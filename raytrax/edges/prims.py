@@ -36,9 +36,9 @@ class Prims(NamedTuple):
     eo: jax.Array  # (4, 3, Np) edge origins
     em: jax.Array  # (4, 3, Np) unit in-plane edge normals pointing inside
     finite: jax.Array  # (Np,) False for infinite planes
-    prad: jax.Array  # (Np,) > 0: a disk of that radius about pp (the edges are unused)
-    solid: jax.Array  # (Np,) polygon index of the first face of its convex solid, -1: none
-    nface: jax.Array  # (Np,) faces of that solid (6 box, 4 tetrahedron, 0 none)
+    prad: jax.Array  # (Np,) > 0: a disk of that radius about pp (the edges are unused); (0,) if no disk
+    solid: jax.Array  # (Np,) polygon index of the first face of its convex solid, -1: none; (0,) if no solid
+    nface: jax.Array  # (Np,) faces of that solid (6 box, 4 tetrahedron, 0 none); (0,) if no solid
     light: jax.Array  # (3, L) positions; directions of travel where ldir
     ldir: jax.Array  # (L,) the light is directional
     far: jax.Array  # () beyond every finite primitive (the far end of a directional light's shadow segment)
@@ -57,6 +57,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
     ns = off["ns"]
     parts = []  # EdgePolygons per kind
     solids = []  # (first polygon index, faces per solid, number of solids)
+    round_ = False  # some polygon is a disk
     for spec in KINDS:
         if spec.edge == "sphere":
             continue
@@ -64,6 +65,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
         n = spec.n_ids(group)
         if not n:
             continue
+        round_ = round_ or spec.edge == "disk"
         if spec.solid_faces:
             solids.append((off[spec.name] - ns, spec.solid_faces, n // spec.solid_faces))
         parts.append(spec.edge_polygons(group))
@@ -75,7 +77,7 @@ def build_prims(scene) -> tuple[Prims, dict]:
         fin = jnp.zeros((1,), bool)
         prad = jnp.zeros((1,), dt)
         pmat = jnp.zeros((1,), jnp.int32)
-    npoly = fin.shape[0]
+    npoly = fin.shape[0] if solids else 0  # no convex solid: empty tables
     solid = np.full((npoly,), -1, np.int32)
     nface = np.zeros((npoly,), np.int32)
     for start, k, m in solids:
@@ -104,6 +106,8 @@ def build_prims(scene) -> tuple[Prims, dict]:
     if ns:
         far = jnp.maximum(far, jnp.max(jnp.max(jnp.abs(c), axis=0) * 2.0 + r))
     far = jax.lax.stop_gradient(2.0 * far + 1.0)
+    if not round_:
+        prad = prad[:0]  # no disk: an empty table, and no disk code where it is read
     prims = Prims(
         c,
         r,
@@ -140,9 +144,6 @@ def miss(P: Prims, ns, ids, o, d):
     entry and exit planes of a convex solid; 0 for a sphere), which changes at a
     corner of the silhouette."""
     is_s, si, pi = split_ids(P, ns, ids)
-    oc = P.c[:, si] - o
-    x = V.cross(oc, d)
-    gs = V.dot(x, x) - P.r[si] ** 2 * V.dot(d, d)
     n = P.pn[:, pi]
     t = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
     p = o + t[None] * d
@@ -150,11 +151,12 @@ def miss(P: Prims, ns, ids, o, d):
     gp = -jnp.min(s, 0)
     feat = jnp.argmin(s, 0).astype(jnp.int32)
     gp = jnp.where(P.finite[pi], gp, -1.0)
-    # A disk: distance of the plane hit from its centre beyond the radius.
-    disk = P.prad[pi] > 0
-    gp = jnp.where(disk, V.norm(p - P.pp[:, pi]) - P.prad[pi], gp)
-    feat = jnp.where(disk, 0, feat)
-    if P.solid.shape[0] and MAX_FACES:
+    if P.prad.shape[0]:
+        # A disk: distance of the plane hit from its centre beyond the radius.
+        disk = P.prad[pi] > 0
+        gp = jnp.where(disk, V.norm(p - P.pp[:, pi]) - P.prad[pi], gp)
+        feat = jnp.where(disk, 0, feat)
+    if P.solid.shape[0]:
         # A face of a convex solid (box, tetrahedron): the solid's own miss function,
         # t_near - t_far over its face planes, so that a crease between two of its
         # faces is never mistaken for its silhouette.
@@ -182,6 +184,11 @@ def miss(P: Prims, ns, ids, o, d):
         solid = P.solid[pi] >= 0
         gp = jnp.where(solid, tn - tf, gp)
         feat = jnp.where(solid, 8 * jn + jf, feat)
+    if not ns:  # no sphere in the scene
+        return gp, feat
+    oc = P.c[:, si] - o
+    x = V.cross(oc, d)
+    gs = V.dot(x, x) - P.r[si] ** 2 * V.dot(d, d)
     return jnp.where(is_s, gs, gp), jnp.where(is_s, 0, feat)
 
 
@@ -189,13 +196,15 @@ def first_t(P: Prims, ns, ids, o, d):
     """Distance along unit ``d`` to the first crossing of primitive ``ids``'s surface
     (a sphere's first positive root, a polygon's plane)."""
     is_s, si, pi = split_ids(P, ns, ids)
+    n = P.pn[:, pi]
+    tp = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
+    if not ns:  # no sphere in the scene
+        return tp
     oc = P.c[:, si] - o
     b = V.dot(oc, d)
     disc = b * b - (V.dot(oc, oc) - P.r[si] ** 2)
     sq = V.safe_sqrt(disc)
     ts = jnp.where(b - sq > 0, b - sq, b + sq)
-    n = P.pn[:, pi]
-    tp = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
     return jnp.where(is_s, ts, tp)
 
 
@@ -207,7 +216,7 @@ def specular_step(P: Prims, ns, ids, want_t, o, d):
     is_s, si, pi = split_ids(P, ns, ids)
     t = first_t(P, ns, ids, o, d)
     p = o + t[None] * d
-    n = V.vsel(is_s, V.normalize(p - P.c[:, si]), P.pn[:, pi])
+    n = V.vsel(is_s, V.normalize(p - P.c[:, si]), P.pn[:, pi]) if ns else P.pn[:, pi]
     face = facing(d, n)
     n_s = face.n_s
     itf = interface(face, P.ior[P.mat[jnp.clip(ids, 0, P.mat.shape[0] - 1)]])

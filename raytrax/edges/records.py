@@ -58,6 +58,8 @@ class Records(NamedTuple):
 def object_key(P: Prims, ns, g):
     """The object of global primitive ids ``g`` (-1 stays -1): the first face of a
     convex solid for each of its faces, else the primitive itself."""
+    if not P.solid.shape[0]:  # no convex solid in the scene
+        return g
     pi = jnp.clip(g - ns, 0, P.solid.shape[0] - 1)
     solid = (g >= ns) & (P.solid[pi] >= 0)
     return jnp.where(solid, ns + P.solid[pi], g)

@@ -191,7 +191,7 @@ class KindSpec:
     field: ClassVar[str]  # the Scene attribute (``scene.spheres``)
     module: ClassVar[type]
     keys: ClassVar[tuple[Key, ...]]
-    edge: ClassVar[str] = "polygon"  # how raytrax.edges sees it: "sphere" or "polygon"
+    edge: ClassVar[str] = "polygon"  # how raytrax.edges sees it: "sphere", "polygon" or "disk" (a round polygon)
     faces_per: ClassVar[int] = 1  # edge-primitive ids per object (a box's 6 faces)
     solid_faces: ClassVar[int] = 0  # faces of one convex solid (box 6, tetrahedron 4), 0: not a solid
     triangle_family: ClassVar[bool] = False  # searched in the merged triangle list

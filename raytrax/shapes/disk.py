@@ -70,6 +70,7 @@ class DiskSpec(KindSpec):
     name: ClassVar[str] = "disk"
     field: ClassVar[str] = "disks"
     module: ClassVar[type] = Disks
+    edge: ClassVar[str] = "disk"
     keys: ClassVar[tuple] = (
         Key("center", "center", (3,), "vec3"),
         Key("normal", "normal", (3,), "nonzero3"),
