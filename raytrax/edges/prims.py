@@ -26,7 +26,11 @@ class Prims(NamedTuple):
     Global ids follow the kind registry (:data:`raytrax.shapes.KINDS`): spheres
     ``[0, ns)``, then every other kind's polygons in registry order (planes, quads,
     disks as round polygons, triangles, tetrahedron faces, mesh faces, box faces:
-    6 per box, face ``2 axis + (side > 0)``); see :func:`id_offsets`.
+    6 per box, face ``2 axis + (side > 0)``); see :func:`id_offsets`. The tables of
+    what the scene lacks are empty (``prad`` without disks; ``solid`` and ``nface``
+    without boxes and tetrahedra), and :func:`miss`, :func:`first_t` and
+    :func:`specular_step` then carry no code for it (nor for spheres when ``ns`` is 0):
+    a simpler scene compiles a smaller program.
     """
 
     c: jax.Array  # (3, Ns) sphere centres
