@@ -129,12 +129,12 @@ def _only_shading_batched(in_batched) -> bool:
 
 
 def _shading_options(opts: RenderOptions, flags) -> RenderOptions:
-    """``opts`` for a render whose flagged leaves (``flags`` of ``(scene, key)``, as
-    :func:`_only_shading_batched` takes them) all pass :func:`_only_shading_batched`:
-    where material fields are among them, the colours are read apart from the fields
-    that decide a hit's children, so that the rays stay unflagged (unbatched, without a
-    tangent); else ``opts`` unchanged."""
-    if any(jax.tree.leaves(flags[0].materials)):
+    """``opts`` for a render whose leaves ``flags`` marks (``flags`` of ``(scene, key)``,
+    as :func:`_only_shading_batched` takes them) are batched or differentiated: where
+    they only colour a hit (:func:`_only_shading_batched`) and material fields are among
+    them, the colours are read apart from the fields that decide a hit's children, so
+    that the rays stay unflagged (unbatched, without a tangent); else ``opts`` unchanged."""
+    if _only_shading_batched(flags) and any(jax.tree.leaves(flags[0].materials)):
         return dataclasses.replace(opts, split_material_read=True)
     return opts
 
@@ -209,8 +209,9 @@ def render_image(scene: Scene, opts: RenderOptions, key):
         # Where only colours (and lights, the environment) have a tangent, the rays
         # gain none (read as a batch over colours is, above).
         flags = jax.tree.unflatten(tdef, list(on))
-        jopts = _shading_options(opts, flags) if _only_shading_batched(flags) else opts
-        return _jvp_of_live_jit(jopts, tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o])
+        return _jvp_of_live_jit(
+            _shading_options(opts, flags), tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o]
+        )
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
 
