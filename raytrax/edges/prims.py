@@ -15,7 +15,8 @@ from .. import vec as V
 from ..intersect import offset_scale
 from ..lights import LIGHTS
 from ..materials import facing, interface, refract
-from ..shapes import KINDS
+from ..shapes import KINDS, sphere_roots_safe
+from ..shapes.base import plane_distance
 
 MAX_FACES = 6  # faces of the largest convex solid (a box)
 
@@ -149,7 +150,7 @@ def miss(P: Prims, ns, ids, o, d):
     corner of the silhouette."""
     is_s, si, pi = split_ids(P, ns, ids)
     n = P.pn[:, pi]
-    t = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
+    t = plane_distance(P.pp[:, pi], n, o, d)
     p = o + t[None] * d
     s = jnp.stack([V.dot(p - P.eo[i][:, pi], P.em[i][:, pi]) for i in range(4)])
     gp = -jnp.min(s, 0)
@@ -200,16 +201,11 @@ def first_t(P: Prims, ns, ids, o, d):
     """Distance along unit ``d`` to the first crossing of primitive ``ids``'s surface
     (a sphere's first positive root, a polygon's plane)."""
     is_s, si, pi = split_ids(P, ns, ids)
-    n = P.pn[:, pi]
-    tp = V.safe_div(V.dot(P.pp[:, pi] - o, n), V.dot(d, n))
+    tp = plane_distance(P.pp[:, pi], P.pn[:, pi], o, d)
     if not ns:  # no sphere in the scene
         return tp
-    oc = P.c[:, si] - o
-    b = V.dot(oc, d)
-    disc = b * b - (V.dot(oc, oc) - P.r[si] ** 2)
-    sq = V.safe_sqrt(disc)
-    ts = jnp.where(b - sq > 0, b - sq, b + sq)
-    return jnp.where(is_s, ts, tp)
+    t1, t2 = sphere_roots_safe(P.c[:, si], P.r[si], o, d)
+    return jnp.where(is_s, jnp.where(t1 > 0, t1, t2), tp)
 
 
 def specular_step(P: Prims, ns, ids, want_t, o, d):

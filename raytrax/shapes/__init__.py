@@ -27,7 +27,7 @@ from .box import Boxes, box_crossings, box_hit, box_soa, box_t, euler_matrix
 from .disk import Disks, disk_hit, disk_soa, disk_t
 from .planar import Planes, Quads, plane_hit, plane_soa, plane_t, quad_hit, quad_soa, quad_t
 from .registry import BY_FIELD, BY_NAME, KINDS, OBJECT_TYPES
-from .sphere import Spheres, sphere_crossings, sphere_hit, sphere_soa, sphere_t
+from .sphere import Spheres, sphere_crossings, sphere_hit, sphere_roots_safe, sphere_soa, sphere_t
 from .triangles import Mesh, Tetrahedra, Triangles, ray_frame, tri_crossings, tri_hit, tri_soa, tri_t
 
 __all__ = [
@@ -65,6 +65,7 @@ __all__ = [
     "ray_frame",
     "sphere_crossings",
     "sphere_hit",
+    "sphere_roots_safe",
     "sphere_soa",
     "sphere_t",
     "tri_crossings",

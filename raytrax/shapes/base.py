@@ -39,6 +39,15 @@ def check_shape(name, arr, shape):
         raise ValueError(f"{name}: expected shape {shape}, got {tuple(arr.shape)}")
 
 
+def plane_distance(point, normal, o, d):
+    """Distance along ``d`` from ``o`` (``(3, n)`` each) to the plane through ``point``
+    with normal ``normal`` (``(3, n)`` or broadcastable; need not be unit): the ray
+    parameter ``t`` of the hit, in units of ``|d|``; 0 where ``d`` is parallel to the
+    plane. Differentiable everywhere (:func:`raytrax.vec.safe_div`); the one home of
+    the ray-plane formula for planes, quads, disks and the edge functions."""
+    return V.safe_div(V.dot(point - o, normal), V.dot(d, normal))
+
+
 def tangent_frame(n):
     """Two unit tangents (3, n) for normals (3, n); u-axis is x projected on the plane
     (z for planes facing x)."""

@@ -10,7 +10,18 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .. import vec as V
-from .base import INF, EdgePolygons, Key, KindSpec, SearchPart, ball_bounds, check_shape, tangent_frame, unit_rows
+from .base import (
+    INF,
+    EdgePolygons,
+    Key,
+    KindSpec,
+    SearchPart,
+    ball_bounds,
+    check_shape,
+    plane_distance,
+    tangent_frame,
+    unit_rows,
+)
 
 
 class Disks(eqx.Module):
@@ -57,7 +68,7 @@ def disk_t(ray, P, tmin):
 
 def disk_hit(center, normal, radius, o, d, t0):
     n = V.normalize(normal)
-    t = V.safe_div(V.dot(center - o, n), V.dot(d, n))
+    t = plane_distance(center, n, o, d)
     p = o + t[None] * d
     tu, tv = tangent_frame(n)
     q = p - center

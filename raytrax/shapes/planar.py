@@ -10,7 +10,18 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .. import vec as V
-from .base import INF, EdgePolygons, Key, KindSpec, SearchPart, check_shape, quad_polygons, tangent_frame, unit_rows
+from .base import (
+    INF,
+    EdgePolygons,
+    Key,
+    KindSpec,
+    SearchPart,
+    check_shape,
+    plane_distance,
+    quad_polygons,
+    tangent_frame,
+    unit_rows,
+)
 
 
 class Planes(eqx.Module):
@@ -63,7 +74,7 @@ def plane_t(ray, P, tmin):
 
 def plane_hit(point, normal, o, d, t0):
     n = V.normalize(normal)
-    t = V.safe_div(V.dot(point - o, n), V.dot(d, n))
+    t = plane_distance(point, n, o, d)
     p = o + t[None] * d
     tu, tv = tangent_frame(n)
     q = p - point
@@ -106,7 +117,7 @@ def quad_t(ray, P, tmin):
 
 def quad_hit(c0, c1, c2, c3, o, d, t0):
     n = V.normalize(V.cross(c2 - c0, c3 - c1))
-    t = V.safe_div(V.dot(c0 - o, n), V.dot(d, n))
+    t = plane_distance(c0, n, o, d)
     p = o + t[None] * d
     e1, e3 = c1 - c0, c3 - c0
     q = p - c0

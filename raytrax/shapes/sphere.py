@@ -62,12 +62,22 @@ def sphere_crossings(ray, P, tmax):
     return n1.astype(t1.dtype) + n2.astype(t1.dtype)
 
 
-def sphere_hit(c, r, o, d, t0):
+def sphere_roots_safe(c, r, o, d):
+    """Both roots ``t1 <= t2`` of the ray-sphere quadratic for rays ``o, d`` (``(3,
+    n)``, ``d`` unit) and spheres of centre ``c`` (``(3, n)``) and radius ``r``
+    (``(n,)``), differentiable everywhere: where the ray misses (negative
+    discriminant) both are ``-b``, the closest approach, with a zero square-root
+    gradient (:func:`raytrax.vec.safe_sqrt`). The search's :func:`sphere_roots` is the
+    same quadratic on struct-of-arrays fields, without gradient care."""
     oc = o - c
     b = V.dot(d, oc)
     cc = V.dot(oc, oc) - r * r
     sq = V.safe_sqrt(b * b - cc)
-    t1, t2 = -b - sq, -b + sq
+    return -b - sq, -b + sq
+
+
+def sphere_hit(c, r, o, d, t0):
+    t1, t2 = sphere_roots_safe(c, r, o, d)
     t = jnp.where(jnp.abs(t1 - t0) <= jnp.abs(t2 - t0), t1, t2)
     p = o + t[None] * d
     n = V.normalize(p - c)
