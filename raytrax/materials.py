@@ -29,6 +29,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
 from . import vec as V
@@ -174,6 +175,20 @@ def interface(f: Facing, ior) -> Interface:
     eta = jnp.where(f.front, V.safe_div(1.0, ior), ior)
     F, cos_t, tir = fresnel_dielectric(f.cos_i, eta)
     return Interface(eta, F, cos_t, tir)
+
+
+def never_specular(mats: Materials) -> bool:
+    """Whether no material reflects or transmits: every transparency and reflectivity
+    is a concrete zero (not a traced value: under ``jax.grad`` with respect to them,
+    ``jax.vmap`` over them or inside a ``jax.jit`` that takes them as arguments they
+    may be anything). Then every shading model gives every reflected and refracted
+    child zero weight, and a render of any depth is that of depth 0 (the camera
+    rays' hits, shaded and lit), which :func:`raytrax.render` compiles instead."""
+    try:
+        values = [np.asarray(x) for x in (mats.transparency, mats.reflectivity)]
+    except jax.errors.TracerArrayConversionError:
+        return False
+    return not any(np.any(v != 0) for v in values)
 
 
 def refracts_dominantly(transparency, reflectivity):

@@ -249,3 +249,39 @@ def test_every_kind_mirror_sphere_reflects(every_kind_image):
     px = every_kind_image[sky]
     assert np.all(px[:, 2] > 0.8 * E_BG[2] - 1e-6)  # at least the reflected sky's blue
     assert np.all(px[:, 2] > px[:, 0])  # blueish like the sky
+
+
+def test_a_scene_that_never_reflects_or_refracts_renders_as_depth_0():
+    """Every transparency and reflectivity a concrete zero: ``render`` compiles the
+    depth-0 program (camera hits only) whatever ``max_depth`` says. Against the full
+    depth loop (the same scene passed into a ``jax.jit``, where the materials are traced
+    and nothing is assumed of them): the same image, and the same gradient with respect
+    to the light and the sphere."""
+    import jax
+
+    from raytrax.materials import never_specular
+
+    b = rt.SceneBuilder("physical", width=8, height=6, spp=4, max_depth=3, background=(0.2, 0.3, 0.4))
+    b.camera(position=(0, 1, 5), look_at=(0, 0.4, 0), fov=45)
+    b.light((2, 4, 3), intensity=(20, 20, 20))
+    b.material("floor", (0.7, 0.6, 0.5))
+    b.material("ball", (0.2, 0.4, 0.8))
+    b.plane((0, 0, 0), (0, 1, 0), "floor")
+    b.sphere((0.2, 0.6, 0), 0.6, "ball")
+    s = b.build(jnp.float64)
+    assert never_specular(s.materials)
+    assert not never_specular(rt.with_parameters(s, {"material.ball.reflectivity": jnp.full(3, 0.5)}).materials)
+    assert not jax.jit(lambda s: jnp.asarray(never_specular(s.materials)))(s)  # traced: nothing assumed
+    full = jax.jit(rt.render)  # the scene is an argument: its materials are traced, the depth loop compiled
+    np.testing.assert_allclose(np.asarray(rt.render(s)), np.asarray(full(s)), rtol=1e-12, atol=1e-14)
+    p = rt.parameters(s)
+    q0 = {k: p[k] for k in ("light[0].position", "object[1].center")}
+
+    def loss(q, s, render):
+        return jnp.mean(render(rt.with_parameters(s, q)) ** 2)
+
+    g_short = jax.grad(lambda q: loss(q, s, rt.render))(q0)
+    g_full = jax.jit(jax.grad(lambda q, s: loss(q, s, rt.render)))(q0, s)
+    for k in q0:
+        assert np.all(np.asarray(g_short[k]) != 0), k
+        np.testing.assert_allclose(np.asarray(g_short[k]), np.asarray(g_full[k]), rtol=1e-10, atol=1e-14, err_msg=k)

@@ -6,12 +6,12 @@ import dataclasses
 import math
 
 import jax
-import numpy as np
 
 from ..compile_options import top_level
 from ..edges import EdgeOptions
 from ..edges.prims import id_offsets
 from ..edges.records import compact_bytes
+from ..materials import never_specular
 from ..memory import release_by_default
 from ..scene import Scene, Settings
 from .edge_mode import render_edges
@@ -45,21 +45,6 @@ def edge_shard_bytes(settings: Settings, lights: int, ids: int) -> int:
     one light); the estimate gives 0.33 and 0.77 GiB."""
     samples = settings.width * settings.height * settings.spp
     return samples * (56 + 2 * (settings.max_depth + 1) * compact_bytes(lights, ids))
-
-
-def never_specular(scene: Scene) -> bool:
-    """Whether no material of ``scene`` reflects or transmits: every transparency and
-    reflectivity is a concrete zero (not a traced value: under ``jax.grad`` with
-    respect to them, ``jax.vmap`` over them or inside a ``jax.jit`` that takes them
-    as arguments they may be anything). Then every reflected and refracted child
-    has zero weight, and a render of any ``max_depth`` is that of depth 0 (the
-    camera rays' hits, shaded and lit), which :func:`render` compiles instead: no
-    ray queue, smaller programs, and edge mode's records one chain level deep."""
-    try:
-        values = [np.asarray(x) for x in (scene.materials.transparency, scene.materials.reflectivity)]
-    except jax.errors.TracerArrayConversionError:
-        return False
-    return not any(np.any(v != 0) for v in values)
 
 
 def cpu_devices_in_use() -> int:
@@ -107,7 +92,7 @@ def render(
     file's ``[render]`` keys): ``width``, ``height`` (pixels), ``spp`` (samples per
     pixel, a square number), ``max_depth`` (specular bounces; a
     scene whose materials neither reflect nor transmit renders as depth 0, the same
-    image at less cost: :func:`never_specular`), ``filter_textures`` (box-filter
+    image at less cost: :func:`raytrax.materials.never_specular`), ``filter_textures`` (box-filter
     procedural textures over each sample's footprint), ``branches``
     (specular branches kept per camera sample at each depth; default 2 where a
     material can split a path into reflected and refracted rays, else 1). ``key`` (a PRNG key) jitters each sample inside
@@ -160,7 +145,7 @@ def render(
         if v is not None
     }
     st = dataclasses.replace(scene.settings, **over) if over else scene.settings
-    if st.max_depth > 0 and never_specular(scene):
+    if st.max_depth > 0 and never_specular(scene.materials):
         st = dataclasses.replace(st, max_depth=0)  # no ray goes past the camera hits: the same image
     if devices is None:
         n_dev = default_devices(st, tile_rays, edge_gradients, scene.n_lights, id_offsets(scene)["total"])
