@@ -207,19 +207,11 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
     dt = xy.dtype
     m = max(B, min(opts.subtile, B * n) // B * B)  # rays per sub-tile, whole samples
     ns = m // B  # samples per sub-tile at depth >= 1
-    S = -(-n // ns)  # sub-tiles: enough for n samples of B rays (and n camera rays)
-    cap = S * ns + m  # queue columns: every sub-tile, and a block written past the last live one
     # A ray's state: origin, direction, throughput (3 each) and, where a texture reads
-    # footprints, cone width and its spread (shade), as rows of a (2, r, B, cap) queue;
-    # its sample's id in a (2, B, cap) queue (n: none).
-    # Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
+    # footprints, cone width and its spread (shade), as r rows.
     footprint = needs_footprint(scene.materials, st.filter_textures)
     r = 11 if footprint else 9
-    # A gradient with respect to lights or colours alone leaves the queue without a
-    # tangent (:func:`ray_part`; no tangent of every ray computed, stored and transposed
-    # for nothing; under jax.vmap, not batched either).
     seed = tangent_seed(scene, dt)
-    ray_seed = tangent_seed(ray_part(scene), dt)
     n0 = -(-n // m) * m  # camera rays padded to whole sub-tiles
     xy0 = jnp.concatenate([xy, jnp.zeros((2, n0 - n), dt)], 1) if n0 > n else xy
 
@@ -235,24 +227,37 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
         sid = start + jnp.arange(m, dtype=jnp.int32)
         return rays, jnp.where(sid < n, sid, n)
 
+    def shade_rays(rays, last, extra):  # shade() of m rays (r, m) at depth ``last`` or not
+        cw, sp = (rays[9], rays[10]) if footprint else (jnp.zeros((m,), dt), spread)
+        return shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], cw, sp, opts, last, *extra)
+
+    def light_of(sid):  # shade()'s ``sel`` of rays of samples ``sid`` (n: none), as extra arguments
+        return () if sel is None else (jnp.take(sel, sid, mode="fill", fill_value=0),)
+
     if st.max_depth == 0:
         # Every sample is one camera ray, shaded once and never continued: no ray
         # queue, no depth loop, no packing of children and no scatter of radiance
         # (its sub-tiles' outputs are the radiance in sample order).
         @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
         def shade_camera(rays, *extra):
-            cw, sp = (rays[9], rays[10]) if footprint else (jnp.zeros((m,), dt), spread)
-            return shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], cw, sp, opts, True, *extra)[0]
+            return shade_rays(rays, True, extra)[0]
 
         def camera_tile(_, j):
             rays, sid = camera_rays(j)
-            extra = () if sel is None else (jnp.take(sel, sid, mode="fill", fill_value=0),)
-            return None, shade_camera(rays, *extra)
+            return None, shade_camera(rays, *light_of(sid))
 
         k = n0 // m
         _, rad = jax.lax.scan(camera_tile, None, jnp.arange(k, dtype=jnp.int32))  # (k, 3, m)
         return jnp.moveaxis(rad, 1, 0).reshape(3, n0)[:, :n] + seed
 
+    S = -(-n // ns)  # sub-tiles: enough for n samples of B rays (and n camera rays)
+    cap = S * ns + m  # queue columns: every sub-tile, and a block written past the last live one
+    # The rays as rows of a (2, r, B, cap) queue, their samples' ids in a (2, B, cap) queue
+    # (n: none). Depth d >= 1 reads half d % 2 and writes the other half; depth 0 reads xy.
+    # A gradient with respect to lights or colours alone leaves the queue without a
+    # tangent (:func:`ray_part`; no tangent of every ray computed, stored and transposed
+    # for nothing; under jax.vmap, not batched either).
+    ray_seed = tangent_seed(ray_part(scene), dt)
     queue = (jnp.zeros((2, r, B, cap), dt) + ray_seed, jnp.full((2, B, cap), n, jnp.int32))
 
     def depth_body(carry, depth):
@@ -266,8 +271,7 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
         # stored per sub-tile are its input rays.
         @functools.partial(jax.checkpoint, policy=SHADE_POLICY)
         def sub_tile(rays, sid_t, *extra):
-            cw, sp = (rays[9], rays[10]) if footprint else (jnp.zeros((m,), dt), spread)
-            contrib, kids = shade(scene, kinds, rays[0:3], rays[3:6], rays[6:9], cw, sp, opts, last, *extra)
+            contrib, kids = shade_rays(rays, last, extra)
 
             def results(g, children):  # g rays per sample in this sub-tile (1 at depth 0, else B)
                 k = m // g
@@ -308,8 +312,7 @@ def trace(scene: Scene, kinds, xy, spread, opts: RenderOptions, sel=None):
             def live(tc):
                 q, cnt, rad = tc
                 rays, sid_t = jax.lax.cond(depth == 0, camera_rays, lambda j: C_.read(q, half, j, ns, cols, n), j)
-                extra = () if sel is None else (jnp.take(sel, sid_t, mode="fill", fill_value=0),)
-                rad_k, sids, block, bid, c = sub_tile(rays, sid_t, *extra)
+                rad_k, sids, block, bid, c = sub_tile(rays, sid_t, *light_of(sid_t))
                 # radiance is accumulated as (n, 3) rows; the (m, 3) update built by a
                 # loop fusion (a transposed copy would run as a slow standalone transpose)
                 upd = jnp.stack([rad_k[0], rad_k[1], rad_k[2]], -1)
