@@ -3,10 +3,12 @@ budget and with smaller ones, compiled in one process and called in alternating 
 
     python benchmarks/bench_edge_budget.py                               # edge_occluders 64 x 48, spp 16
     python benchmarks/bench_edge_budget.py --scene glass_over_boxes --budgets 4096,8192
+    python benchmarks/bench_edge_budget.py --scene edge_sphere --size 160x120 --budgets 2x,4x
 
-Prints each budget's first call and its steady time (min and median over the rounds), and
-the largest difference of its gradient from the default budget's (0 where the budget holds
-every pair: the same events are found either way).
+Prints what the scene needs (``rt.edge_pairs``; a budget ``Nx`` is N times that), each
+budget's first call and its steady time (min and median over the rounds), and the largest
+difference of its gradient from the default budget's (0 where the budget holds every pair:
+the same events are found either way).
 """
 
 from __future__ import annotations
@@ -24,13 +26,18 @@ from scenes import image_size  # pyright: ignore[reportAttributeAccessIssue]
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
-def _budgets(text: str) -> list[int]:
-    """Comma-separated positive integers."""
+def _budgets(text: str) -> list[int | float]:
+    """Comma-separated positive integers, or multiples of what the scene needs (``4x``)."""
+    out: list[int | float] = []
     try:
-        out = [int(b) for b in text.split(",") if b.strip()]
+        for b in (b.strip() for b in text.split(",")):
+            if b:
+                out.append(float(b[:-1]) if b.endswith("x") else int(b))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers such as 4096,8192, got {text!r}") from None
-    if any(b < 1 for b in out):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers or multiples such as 4096,4x, got {text!r}"
+        ) from None
+    if any(b <= 0 for b in out):
         raise argparse.ArgumentTypeError(f"expected positive budgets, got {text!r}")
     return out
 
@@ -51,7 +58,8 @@ def main() -> None:
         )
     scene = rt.load_scene(path)
     params = rt.parameters(scene)
-    budgets = [None] + a.budgets
+    need = rt.edge_pairs(scene, width=W, height=H, spp=a.spp)
+    budgets = [None] + [max(1, round(b * need)) if isinstance(b, float) else b for b in a.budgets]
 
     def make(budget):
         def loss(p):
@@ -75,6 +83,7 @@ def main() -> None:
             jax.block_until_ready(fs[b](params))
             times[b].append(time.perf_counter() - t)
     print(f"{a.scene} {W} x {H}, spp {a.spp}: value_and_grad with edge_gradients=True, {a.rounds} alternating rounds")
+    print(f"rt.edge_pairs: {need}")
     print(f"{'edge_budget':>12} {'first s':>8} {'min s':>7} {'median s':>9} {'max |grad - default|':>21}")
     for b in budgets:
         ts = sorted(times[b])

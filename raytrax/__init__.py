@@ -27,6 +27,7 @@ _LAZY = {
     "Camera": "camera",
     "RenderOptions": "renderer",
     "render": "renderer",
+    "edge_pairs": "renderer",
     "PointLights": "lights",
     "DirectionalLights": "lights",
     "Materials": "materials",

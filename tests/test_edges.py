@@ -147,6 +147,17 @@ def test_edge_budget_overflow_is_a_clear_error():
         )
 
 
+def test_edge_pairs_counts_what_the_budget_must_hold():
+    # The finder of test_sliding_quad_matches_analytic_derivative[9] (the same budget): at
+    # spp 9 (a 48 x 36 sample grid) the quad's vertical edges (x = 5.7 and 11.4 pixels)
+    # separate 18 pairs of samples each (the sample rows with y in (3, 9)) and its
+    # horizontal edges (y = 3 and 9) 17 each (the sample columns with x in (5.7, 11.4)).
+    assert rt.edge_pairs(quad_scene(), spp=9, edge_budget=QUAD_BUDGET) == 2 * 18 + 2 * 17
+    diamond = rt.with_parameters(quad_scene(), {"object[0].corners": jnp.asarray(DIAMOND, jnp.float64)})
+    with pytest.raises(Exception, match="edge_budget"):
+        rt.edge_pairs(diamond, spp=9, edge_budget=QUAD_BUDGET)
+
+
 def test_bad_edge_options():
     s = quad_scene()
     with pytest.raises(ValueError, match="key=None"):

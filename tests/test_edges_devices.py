@@ -27,3 +27,22 @@ def test_sharded_edge_gradient_equals_single_device():
         np.testing.assert_allclose(np.asarray(g4[k]), g1[k], rtol=1e-9, atol=1e-12, err_msg=k)
     # The radius moves only the silhouette: its derivative is all boundary term.
     assert abs(float(g1["object[1].radius"])) > 1e-3
+
+
+def test_budget_error_of_a_sharded_finder_is_raised_cleanly():
+    # The options of the test above, at half the budget the scene needs, under jax.grad
+    # (where the finder raises the error itself, at run time): every device raises it.
+    # A check on one device only would leave the others waiting for it at their next
+    # collective, and the process would abort.
+    scene = cases.edge_scene("edge_sphere")
+    kw = dict(devices=4, tile_rays=64)
+    need = rt.edge_pairs(scene, **kw)
+    assert need >= 4
+    with pytest.raises(Exception, match="edge_budget"):
+        jax.block_until_ready(
+            jax.grad(
+                lambda p: cases.weighted_mean(
+                    rt.with_parameters(scene, p), edge_gradients=True, edge_budget=need // 2, **kw
+                )
+            )(rt.parameters(scene))
+        )

@@ -95,11 +95,16 @@ def _pixel_of(x, width, height):
     return py * width + px
 
 
-def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
+def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool = True):
     """The edge crossings of the sample grid and what :func:`edge_image` needs to
     turn them into the boundary term (steps 1-5 of :mod:`raytrax.edges`, none of
-    which is differentiated: ``scene`` is used without gradient); the number of
-    sample pairs with an edge between them; and the silhouette quadrature's rays
+    which is differentiated: ``scene`` is used without gradient); a budget that holds
+    this grid's edges (the larger of the number of edge crossings and the number of
+    sample pairs whose records differ at all; while the budget used holds them, no
+    budget below the crossings does; past it, at least what is needed); whether
+    the budget used is exceeded (with ``check``, the default, that is a runtime
+    error raised inside the program, on every device of a sharded finder; without,
+    the caller checks this flag); and the silhouette quadrature's rays
     (step 6), or ``None`` in a scene without spheres. The crossings are a dict of
     ``K = budget`` (rounded up to whole chunks) entries: ``events``
     (:class:`~raytrax.edges.Events`), edge points ``xs (2, K)``, ``ok (K,)``, the
@@ -637,11 +642,27 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
             out["qx"], out["qw"], out["pin"] = qx, qw, _pixel_of(x0, width, height)
         return out
 
-    def solve_or_skip(c, R):
-        return run_or_zeros(any_true(c["live"]), solve, c, R)
+    over = (count > budget) | (n_differ > Kp)
+
+    def solve_or_skip(c, const):
+        R, over = const
+        out = run_or_zeros(any_true(c["live"]), solve, c, R)
+        # The budget's check, in every chunk and so on every device of a sharded
+        # finder: a check outside the sharded map would stop one device while the
+        # others wait for it at their next collective, which aborts the process.
+        if check:
+            out["ok"] = eqx.error_if(
+                out["ok"],
+                over,
+                f"edge_gradients: more sample pairs straddle an edge than edge_budget={budget}; "
+                "pass a larger edge_budget to render (raytrax.edge_pairs gives what a scene needs)",
+            )
+        return out
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
-    res = map_chunks(solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=R)
+    res = map_chunks(
+        solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=(R, over)
+    )
     # The jumps: the probes of every event traced in one chunked pass, skipping the
     # chunks past the live events (a shadow edge's jump is that of its light's
     # contribution alone: index k; visibility edges and the inner rays carry
@@ -675,12 +696,6 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
     df = jnp.where(res["jump_ok"][:, None], fm - fp, 0.0)
     coef = df * res["cbase"][:, None]
     coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
-    coef = eqx.error_if(
-        coef,
-        (count > budget) | (n_differ > Kp),
-        f"edge_gradients: more sample pairs straddle an edge than "
-        f"edge_budget={budget}; pass a larger edge_budget to render",
-    )
     quad = None
     if "qx" in res:
         live_q = jnp.any(res["qw"] != 0, 0)
@@ -703,7 +718,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at):
         "pix": res["pix"],
         "wts": res["wts"],
     }
-    return jax.lax.stop_gradient(found), count, jax.lax.stop_gradient(quad)
+    need = jnp.maximum(count.astype(jnp.int32), n_differ.astype(jnp.int32))
+    return jax.lax.stop_gradient(found), need, over, jax.lax.stop_gradient(quad)
 
 
 def edge_image(scene, width, height, found):

@@ -1,4 +1,4 @@
-"""The public :func:`render`."""
+"""The public :func:`render` and :func:`edge_pairs`."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from ..edges.records import compact_bytes
 from ..materials import never_specular
 from ..memory import release_by_default
 from ..scene import Scene, Settings
-from .edge_mode import render_edges
+from .edge_mode import budget_needed, render_edges
 from .options import RAYS_PER_TILE, RenderOptions
 from .tiles import render_image, render_image_jit
 
@@ -122,8 +122,10 @@ def render(
     ``key=None``. ``edge_budget``: the most sample pairs with an edge between
     them (default: a quarter of the samples, at least 4096 and, past 65536, at most
     the larger of 65536 and samples / (2 sqrt(spp)); rounded up to whole chunks, it
-    also bounds the pairs whose samples' records differ at all; exceeding it is a
-    runtime error naming the option).
+    also bounds the pairs whose samples' records differ at all; exceeding it is an
+    error naming the option: a ``ValueError`` from a render outside any
+    transformation, with the budget the scene needs, else a runtime error;
+    :func:`edge_pairs` gives what a scene needs).
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);
     differentiable with respect to every float leaf of ``scene``. Under
@@ -137,6 +139,57 @@ def render(
     a loop's cost over lights or colours, 1.6-2 times it over anything else (see
     ``docs/scaling.md``).
     """
+    st, opts, n_dev = _options(
+        scene, width, height, spp, max_depth, key, filter_textures, branches, tile_rays, devices, edge_gradients
+    )
+    if edge_gradients:
+        img = render_edges(scene, opts, _edge_options(st, key, edge_budget, n_dev))
+    else:
+        # Outside any transformation, one jitted program; under one (a jax.grad, jax.vmap
+        # or a user's jax.jit), the render and its JVP rule are jitted apart, so that
+        # each is traced only where the transformation needs it.
+        img = (render_image_jit if top_level() else render_image)(scene, opts, key)
+    return _on_default_device(img, n_dev)
+
+
+def edge_pairs(
+    scene: Scene,
+    *,
+    width: int | None = None,
+    height: int | None = None,
+    spp: int | None = None,
+    max_depth: int | None = None,
+    filter_textures: bool | None = None,
+    branches: int | None = None,
+    tile_rays: int = RAYS_PER_TILE,
+    devices=None,
+    edge_budget: int | None = None,
+) -> int:
+    """The ``edge_budget`` that ``render(scene, edge_gradients=True, ...)`` with the
+    same keywords needs: the number of sample pairs with an edge between them (edge
+    crossings; any smaller budget raises) or, where larger, of sample pairs whose
+    samples' records differ at all (the pairing holds them too). Runs the render's
+    edge finder once (the program the render compiles with this ``edge_budget``,
+    default the default budget) and returns a Python int; a scene that needs more
+    than that budget raises the render's ``ValueError``. Call it outside ``jax.jit``.
+
+    The finder's arrays have the budget's size (its work past the last crossing is
+    skipped, not its bookkeeping), so a budget a few times what the scene needs
+    makes each edge-mode call cheaper, with the same gradient, as long as the edges
+    stay within it (``docs/gradients.md``, "The edge budget")::
+
+        need = rt.edge_pairs(scene)
+        img = rt.render(scene, edge_gradients=True, edge_budget=max(1024, 4 * need))
+    """
+    st, opts, n_dev = _options(
+        scene, width, height, spp, max_depth, None, filter_textures, branches, tile_rays, devices, True
+    )
+    return budget_needed(scene, opts, _edge_options(st, None, edge_budget, n_dev))
+
+
+def _options(scene, width, height, spp, max_depth, key, filter_textures, branches, tile_rays, devices, edge_gradients):
+    """The settings, :class:`RenderOptions` and device count of a render of ``scene``
+    with these keywords (:func:`render`'s), checked."""
     over = {
         k: v
         for k, v in dict(
@@ -155,21 +208,17 @@ def render(
         n_dev = devices
     else:
         raise ValueError(f"devices: expected None, 'all' or an integer in [1, {jax.device_count()}], got {devices!r}")
-    opts = RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev)
-    if edge_gradients:
-        if key is not None:
-            raise ValueError(
-                "edge_gradients: edges are found on the regular n x n sample grid; pass key=None (no jitter)"
-            )
-        if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
-            raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
-        img = render_edges(scene, opts, EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev))
-    else:
-        # Outside any transformation, one jitted program; under one (a jax.grad, jax.vmap
-        # or a user's jax.jit), the render and its JVP rule are jitted apart, so that
-        # each is traced only where the transformation needs it.
-        img = (render_image_jit if top_level() else render_image)(scene, opts, key)
-    return _on_default_device(img, n_dev)
+    return st, RenderOptions(settings=st, tile_rays=tile_rays, jitter=key is not None, devices=n_dev), n_dev
+
+
+def _edge_options(st: Settings, key, edge_budget, n_dev: int) -> EdgeOptions:
+    """The :class:`~raytrax.edges.EdgeOptions` of an edge-mode render of settings
+    ``st``, its ``key`` and ``edge_budget`` checked."""
+    if key is not None:
+        raise ValueError("edge_gradients: edges are found on the regular n x n sample grid; pass key=None (no jitter)")
+    if edge_budget is not None and (not isinstance(edge_budget, int) or edge_budget < 1):
+        raise ValueError(f"edge_budget: expected a positive integer, got {edge_budget!r}")
+    return EdgeOptions(math.isqrt(st.spp), edge_budget, st.max_depth + 1, n_dev)
 
 
 def _on_default_device(img, n_dev: int):

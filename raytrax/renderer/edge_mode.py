@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from ..branching import any_in_batch, run_or_zeros
 from ..camera import cone_spread
 from ..chunks import equal_chunks, map_chunks
-from ..compile_options import filter_jit
+from ..compile_options import filter_jit, top_level
 from ..edges import edge_image, find_edges
 from ..intersect import prepare
 from ..scene import Scene
@@ -59,9 +59,9 @@ def radiance_at(scene: Scene, opts: RenderOptions, xy, n: int, light=None, grad=
     return map_positions(one, xy, opts.tile_rays // st.branches, sel, need, devices)
 
 
-def _find(scene: Scene, hard: RenderOptions, eo):
+def _find(scene: Scene, hard: RenderOptions, eo, check: bool):
     """:func:`raytrax.edges.find_edges` on the grid of ``scene`` (no gradient), its
-    jumps measured with the ``hard`` options' renders."""
+    jumps measured with the ``hard`` options' renders (``check``: as there)."""
     st = hard.settings
     return find_edges(
         scene,
@@ -69,6 +69,7 @@ def _find(scene: Scene, hard: RenderOptions, eo):
         st.height,
         eo,
         lambda xy, light, need: radiance_at(scene, hard, xy, eo.samples, light, need=need, devices=eo.devices),
+        check,
     )
 
 
@@ -111,6 +112,14 @@ _grid_jit = filter_jit(_grid)
 _edge_image_jit = filter_jit(_edge_image)
 
 
+def _hard(opts: RenderOptions) -> RenderOptions:
+    """``opts`` with the hard (unfiltered) procedural patterns, which the finder
+    measures jumps with: edge pieces are cut where the pattern changes beside the
+    edge, so that the derivative the estimate converges to is that of the image as the
+    samples grow, where the filter width goes to 0."""
+    return dataclasses.replace(opts, settings=dataclasses.replace(opts.settings, filter_textures=False))
+
+
 def render_edges(scene: Scene, opts: RenderOptions, eo):
     """The image from its ``n x n`` sample grid (``n = sqrt(spp)``), plus the boundary
     term of :mod:`raytrax.edges` (zero in value) found on the same samples.
@@ -120,12 +129,31 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
     or an eager ``jax.grad``), each compiles on its own, which costs less than
     compiling them as one (XLA:CPU's compile time grows faster than the program);
     inside a ``jax.jit`` they are one program."""
-    # Jumps are measured with the hard (unfiltered) patterns, and edge pieces are cut
-    # where the pattern changes beside the edge: the derivative the estimate converges
-    # to is that of the image as the samples grow, where the filter width goes to 0.
-    hard = dataclasses.replace(opts, settings=dataclasses.replace(opts.settings, filter_textures=False))
+    found, _, _, quad = _found(scene, opts, eo)
+    return _grid_jit(scene, opts, eo, quad) + _edge_image_jit(scene, opts, found)
+
+
+def budget_needed(scene: Scene, opts: RenderOptions, eo) -> int:
+    """A budget that :func:`render_edges` of ``scene`` with these options needs
+    (:func:`raytrax.edges.find_edges`), found with the finder that the render runs
+    (``eo``'s budget; called outside any transformation)."""
+    return int(_found(scene, opts, eo)[1])
+
+
+def _found(scene: Scene, opts: RenderOptions, eo):
+    """The finder's results for ``scene``. Outside any transformation, the finder
+    returns whether the budget is exceeded and this raises the error here (a
+    ``ValueError``, with the budget the scene needs); under one, the finder raises it
+    itself at run time."""
     # Without gradient here too (find_edges stops it inside as well): under an eager
     # jax.grad the finder then runs as it is, with no JVP of it traced, and its
     # compiled program is the same whichever parameters are differentiated.
-    found, _, quad = _find_jit(jax.lax.stop_gradient(scene), hard, eo)
-    return _grid_jit(scene, opts, eo, quad) + _edge_image_jit(scene, opts, found)
+    check = not top_level()
+    out = _find_jit(jax.lax.stop_gradient(scene), _hard(opts), eo, check)
+    if not check and bool(out[2]):
+        raise ValueError(
+            f"edge_gradients: more sample pairs straddle an edge than the edge budget holds "
+            f"(edge_budget={eo.budget if eo.budget is not None else 'default'}; this render needs at least "
+            f"{int(out[1])}); pass a larger edge_budget to render"
+        )
+    return out
