@@ -645,7 +645,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
     over = (count > budget) | (n_differ > Kp)
 
     def solve_or_skip(c, const):
-        R, over = const
+        R, exceeded = const
         out = run_or_zeros(any_true(c["live"]), solve, c, R)
         # The budget's check, in every chunk and so on every device of a sharded
         # finder: a check outside the sharded map would stop one device while the
@@ -653,7 +653,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         if check:
             out["ok"] = eqx.error_if(
                 out["ok"],
-                over,
+                exceeded,
                 f"edge_gradients: more sample pairs straddle an edge than edge_budget={budget}; "
                 "pass a larger edge_budget to render (raytrax.edge_pairs gives what a scene needs)",
             )

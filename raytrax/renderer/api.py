@@ -174,9 +174,10 @@ def edge_pairs(
     than that budget raises the render's ``ValueError``. Call it outside ``jax.jit``.
 
     The finder's arrays have the budget's size (its work past the last crossing is
-    skipped, not its bookkeeping), so a budget a few times what the scene needs
-    makes each edge-mode call cheaper, with the same gradient, as long as the edges
-    stay within it (``docs/gradients.md``, "The edge budget")::
+    skipped, not its bookkeeping), so a budget a few times what the scene needs can
+    make each edge-mode call cheaper, with the same gradient, as long as the edges
+    stay within it (a third of a call on one scene, nothing measurable on another:
+    ``docs/gradients.md``, "Cost")::
 
         need = rt.edge_pairs(scene)
         img = rt.render(scene, edge_gradients=True, edge_budget=max(1024, 4 * need))
