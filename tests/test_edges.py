@@ -154,8 +154,10 @@ def test_edge_pairs_counts_what_the_budget_must_hold():
     # horizontal edges (y = 3 and 9) 17 each (the sample columns with x in (5.7, 11.4)).
     assert rt.edge_pairs(quad_scene(), spp=9, edge_budget=QUAD_BUDGET) == 2 * 18 + 2 * 17
     diamond = rt.with_parameters(quad_scene(), {"object[0].corners": jnp.asarray(DIAMOND, jnp.float64)})
-    with pytest.raises(Exception, match="edge_budget"):
+    with pytest.raises(ValueError, match="edge_budget"):
         rt.edge_pairs(diamond, spp=9, edge_budget=QUAD_BUDGET)
+    with pytest.raises(TypeError, match="outside jax.jit"):
+        jax.jit(lambda s: rt.edge_pairs(s, spp=9, edge_budget=QUAD_BUDGET))(quad_scene())
 
 
 def test_bad_edge_options():

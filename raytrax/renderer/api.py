@@ -182,6 +182,11 @@ def edge_pairs(
         need = rt.edge_pairs(scene)
         img = rt.render(scene, edge_gradients=True, edge_budget=max(1024, 4 * need))
     """
+    if not top_level():
+        raise TypeError(
+            "edge_pairs: call it outside jax.jit, jax.grad and jax.vmap (it runs the edge finder and "
+            "returns a Python int); pass its result as render's edge_budget inside them"
+        )
     st, opts, n_dev = _options(
         scene, width, height, spp, max_depth, None, filter_textures, branches, tile_rays, devices, True
     )
