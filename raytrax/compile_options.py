@@ -132,10 +132,43 @@ def top_level() -> bool:
     return bool(trace_state_clean())
 
 
+_PASSING_TRACES = ("EvalTrace", "JVPTrace", "LinearizeTrace", "BatchTrace")
+
+
+def evaluates_now() -> bool:
+    """Whether a function of concrete (non-traced) arrays called now runs and returns
+    concrete arrays: outside any transformation, or inside an eager ``jax.grad``,
+    ``jax.jvp`` or ``jax.vmap`` (which pass such a call through untouched), but not
+    while ``jax.jit`` (or anything else that stages) is tracing. False where jax's
+    internals have moved."""
+    try:
+        from jax._src.core import trace_ctx
+    except ImportError:  # pragma: no cover - another jax version
+        return False
+    t = getattr(trace_ctx, "trace", None)
+    if t is None:  # pragma: no cover - another jax version
+        return False
+    while t is not None:
+        if type(t).__name__ not in _PASSING_TRACES:
+            return False
+        t = getattr(t, "parent_trace", None)
+    return True
+
+
+def concrete(tree) -> bool:
+    """Whether ``tree``'s leaves are all concrete (no jax tracer) and a function of
+    them called now runs at once (:func:`evaluates_now`)."""
+    import jax
+    from jax.core import Tracer
+
+    return not any(isinstance(x, Tracer) for x in jax.tree.leaves(tree)) and evaluates_now()
+
+
 def filter_jit(fun):
     """``eqx.filter_jit(fun)``, compiled with :func:`compiler_options` of the default
-    backend when called outside any jax transformation (nested inside another
-    ``jax.jit`` or ``jax.grad``, the outer compile's options apply). The wrappers are
+    backend when called outside any jax transformation or with concrete arguments
+    (:func:`concrete`; nested inside another ``jax.jit``, or given traced values under
+    ``jax.grad``, the outer compile's options apply). The wrappers are
     made on first use, so that importing raytrax does not start jax's backends."""
     import equinox as eqx
 
@@ -145,7 +178,9 @@ def filter_jit(fun):
     def call(*args, **kwargs):
         import jax
 
-        key = jax.default_backend() if top_level() else None
+        # Called with concrete arguments inside an eager jax.grad (the edge finder is),
+        # the program runs outside the transformation: the same one as at top level.
+        key = jax.default_backend() if top_level() or concrete((args, kwargs)) else None
         jitted = made.get(key)
         if jitted is None:
             if key is None:

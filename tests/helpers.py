@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -110,3 +114,29 @@ def python_output(code: str, **env) -> str:
         [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, timeout=120, check=True
     )
     return out.stdout
+
+
+@contextlib.contextmanager
+def compiled_programs():
+    """Within the block, the names of the programs XLA compiles (``jit(name)``, in order)
+    are appended to the yielded list (jax's ``jax_log_compiles`` messages)."""
+    names: list[str] = []
+
+    class Handler(logging.Handler):
+        def emit(self, record):
+            m = re.search(r"Finished XLA compilation of (\S+) in", record.getMessage())
+            if m:
+                names.append(m.group(1))
+
+    handler = Handler(logging.DEBUG)
+    loggers = [logging.getLogger(n) for n in ("jax._src.interpreters.pxla", "jax._src.dispatch")]
+    before = jax.config.values["jax_log_compiles"]
+    jax.config.update("jax_log_compiles", True)
+    for lg in loggers:
+        lg.addHandler(handler)
+    try:
+        yield names
+    finally:
+        for lg in loggers:
+            lg.removeHandler(handler)
+        jax.config.update("jax_log_compiles", before)

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from golden import cases
-from helpers import jit_grad, jittered_central_differences
+from helpers import compiled_programs, jit_grad, jittered_central_differences
 
 import raytrax as rt
 from raytrax import edges
@@ -131,20 +131,23 @@ def test_sliding_box_matches_analytic_derivative():
 def test_edge_mode_leaves_the_image_unchanged():
     s = quad_scene()
     a = np.asarray(rt.render(s, spp=9))
-    # The same 3 x 3 grid per pixel; the spp-9 budget: the edge finder of
-    # test_sliding_quad_matches_analytic_derivative[9], compiled once.
-    b = np.asarray(rt.render(s, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))
+    # The same 3 x 3 grid per pixel; the spp-9 budget: the programs of
+    # test_sliding_quad_matches_analytic_derivative[9], compiled once. An eager render
+    # and an eager jax.grad run one compiled edge finder.
+    jax.grad(lambda d: _moment(d, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))(jnp.asarray(0.0, jnp.float64))
+    with compiled_programs() as compiled:
+        b = np.asarray(rt.render(s, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))
     np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    assert "jit(_find)" not in compiled, compiled
 
 
 def test_edge_budget_overflow_is_a_clear_error():
     # The program of test_sliding_quad_matches_analytic_derivative[9] (the same budget),
     # with a quad whose edges more sample pairs straddle than the budget allows.
     zero = jnp.asarray(0.0, jnp.float64)
-    with pytest.raises(Exception, match="edge_budget"):
-        jax.block_until_ready(
-            jax.grad(lambda d: _moment(d, DIAMOND, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))(zero)
-        )
+    # Under an eager jax.grad the scene's values are concrete: a ValueError with the need.
+    with pytest.raises(ValueError, match=r"edge_budget=100; this render needs at least 156"):
+        jax.grad(lambda d: _moment(d, DIAMOND, spp=9, edge_gradients=True, edge_budget=QUAD_BUDGET))(zero)
 
 
 def test_edge_pairs_counts_what_the_budget_must_hold():

@@ -13,14 +13,17 @@ import raytrax as rt
 pytestmark = pytest.mark.xdist_group(cases.GROUP)
 
 
+KW = dict(devices=4, tile_rays=64)
+
+
 def test_sharded_edge_gradient_equals_single_device():
     # scenes/edge_sphere.toml (a sphere's silhouette, so the quadrature's rays are traced
     # too; 8 x 6, spp 256), float64; tile_rays=64 makes several tiles per device. The
     # single-device gradient is the golden case's (default tiles).
     scene = cases.edge_scene("edge_sphere")
-    g4 = jax.grad(
-        lambda p: cases.weighted_mean(rt.with_parameters(scene, p), edge_gradients=True, devices=4, tile_rays=64)
-    )(rt.parameters(scene))
+    g4 = jax.grad(lambda p: cases.weighted_mean(rt.with_parameters(scene, p), edge_gradients=True, **KW))(
+        rt.parameters(scene)
+    )
     g1 = cases.gradient_case("edge_sphere", True)
     assert set(g4) == set(g1)
     for k in g1:
@@ -30,19 +33,13 @@ def test_sharded_edge_gradient_equals_single_device():
 
 
 def test_budget_error_of_a_sharded_finder_is_raised_cleanly():
-    # The options of the test above, at half the budget the scene needs, under jax.grad
+    # The options of the test above at half the budget the scene needs, inside jax.jit
     # (where the finder raises the error itself, at run time): every device raises it.
     # A check on one device only would leave the others waiting for it at their next
     # collective, and the process would abort.
     scene = cases.edge_scene("edge_sphere")
-    kw = dict(devices=4, tile_rays=64)
-    need = rt.edge_pairs(scene, **kw)
+    need = rt.edge_pairs(scene, **KW)
     assert need >= 4
+    render = jax.jit(lambda s: rt.render(s, edge_gradients=True, edge_budget=need // 2, **KW))
     with pytest.raises(Exception, match="edge_budget"):
-        jax.block_until_ready(
-            jax.grad(
-                lambda p: cases.weighted_mean(
-                    rt.with_parameters(scene, p), edge_gradients=True, edge_budget=need // 2, **kw
-                )
-            )(rt.parameters(scene))
-        )
+        jax.block_until_ready(render(scene))

@@ -123,8 +123,9 @@ def render(
     them (default: a quarter of the samples, at least 4096 and, past 65536, at most
     the larger of 65536 and samples / (2 sqrt(spp)); rounded up to whole chunks, it
     also bounds the pairs whose samples' records differ at all; exceeding it is an
-    error naming the option: a ``ValueError`` from a render outside any
-    transformation, with the budget the scene needs, else a runtime error;
+    error naming the option: a ``ValueError`` with the budget the scene needs from a
+    render outside any transformation or inside an eager ``jax.grad``, a runtime
+    error inside ``jax.jit`` or ``jax.vmap``;
     :func:`edge_pairs` gives what a scene needs).
 
     Compiled once per scene structure and option set (``eqx.filter_jit``);

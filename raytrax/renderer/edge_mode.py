@@ -7,11 +7,12 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+from jax.core import Tracer
 
 from ..branching import any_in_batch, run_or_zeros
 from ..camera import cone_spread
 from ..chunks import equal_chunks, map_chunks
-from ..compile_options import filter_jit, top_level
+from ..compile_options import concrete, filter_jit
 from ..edges import edge_image, find_edges
 from ..intersect import prepare
 from ..scene import Scene
@@ -141,15 +142,23 @@ def budget_needed(scene: Scene, opts: RenderOptions, eo) -> int:
 
 
 def _found(scene: Scene, opts: RenderOptions, eo):
-    """The finder's results for ``scene``. Outside any transformation, the finder
-    returns whether the budget is exceeded and this raises the error here (a
-    ``ValueError``, with the budget the scene needs); under one, the finder raises it
-    itself at run time."""
+    """The finder's results for ``scene``. Where the scene's values are concrete (a
+    render outside any transformation, or an eager ``jax.grad``: the finder takes
+    them without gradient), the finder returns whether the budget is exceeded and
+    this raises the error here (a ``ValueError``, with the budget the scene needs);
+    inside ``jax.jit`` or ``jax.vmap`` the finder raises it itself at run time. The
+    finder of an eager render and of an eager gradient is then one compiled program,
+    which jax's persistent compilation cache can keep (one with a run-time check
+    cannot be cached)."""
     # Without gradient here too (find_edges stops it inside as well): under an eager
     # jax.grad the finder then runs as it is, with no JVP of it traced, and its
     # compiled program is the same whichever parameters are differentiated.
-    check = not top_level()
-    out = _find_jit(jax.lax.stop_gradient(scene), _hard(opts), eo, check)
+    scene = jax.lax.stop_gradient(scene)
+    check = not concrete(scene)
+    out = _find_jit(scene, _hard(opts), eo, check)
+    if not check and isinstance(out[2], Tracer):  # pragma: no cover - a trace not foreseen
+        check = True
+        out = _find_jit(scene, _hard(opts), eo, check)
     if not check and bool(out[2]):
         raise ValueError(
             f"edge_gradients: more sample pairs straddle an edge than the edge budget holds "
