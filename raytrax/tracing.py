@@ -18,25 +18,34 @@ def tangent_seed(tree, dtype):
     differentiated from the first pass over the loop body. A carry that starts as
     a symbolic zero and gains a tangent inside the body makes the scan trace its
     body a second time, and nested scans multiply these passes. Outside any
-    transformation, and under ``jax.vmap``, it is a plain unbatched zero."""
+    transformation it is a plain zero; under ``jax.vmap`` it is batched where a leaf
+    of ``tree`` is (as a carry computed from those leaves is)."""
     leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact)]
     return _seed(jnp.dtype(dtype), *leaves)
 
 
+def _zero_of(dtype, *xs):
+    """``0`` of ``dtype`` computed from the first element of each of ``xs`` without
+    arithmetic (an infinite or NaN value gives no NaN): batched where any of them is."""
+    if not xs:
+        return jnp.zeros((), dtype)
+    first = jnp.concatenate([x.reshape(-1)[:1].astype(dtype) for x in xs])
+    return jnp.sum(jnp.where(False, first, jnp.zeros_like(first)))
+
+
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _seed(dtype, *leaves):
-    del leaves
-    return jnp.zeros((), dtype)
+    # The value from every leaf: under jax.vmap it is batched where a leaf is, like the
+    # tangent the rule below computes from them. (A zero unbatched value with a batched
+    # tangent breaks the batching of a jitted function that is then differentiated.)
+    return _zero_of(dtype, *leaves)
 
 
 def _seed_jvp(dtype, primals, tangents):
-    del primals
     live = [t for t in tangents if not isinstance(t, SymbolicZero)]
     if not live:  # pragma: no cover - jax calls the rule only when some tangent is live
-        return jnp.zeros((), dtype), jnp.zeros((), dtype)
-    # zero, computed from one differentiated input without arithmetic (an infinite tangent gives no NaN)
-    t = live[0].reshape(-1)[:1]
-    return jnp.zeros((), dtype), jnp.sum(jnp.where(False, t, jnp.zeros_like(t))).astype(dtype)
+        return _zero_of(dtype, *primals), jnp.zeros((), dtype)
+    return _zero_of(dtype, *primals), _zero_of(dtype, live[0])
 
 
 _seed.defjvp(_seed_jvp, symbolic_zeros=True)

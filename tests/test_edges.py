@@ -108,6 +108,19 @@ def test_sliding_quad_matches_analytic_derivative(spp):
     np.testing.assert_allclose(g_edge, exact, rtol=rtol)
 
 
+def test_gradient_of_a_vmapped_edge_render_matches_a_loop():
+    # jax.grad of a jax.vmap of edge-mode renders (spp 1: the finder of
+    # test_sliding_quad_matches_analytic_derivative[1] for the loop) is the sum of the
+    # single gradients.
+    offsets = jnp.asarray([0.0, 0.3], jnp.float64)
+    zero = jnp.asarray(0.0, jnp.float64)
+    batched = jax.grad(lambda d: jnp.sum(jax.vmap(lambda o: _moment(d + o, spp=1, edge_gradients=True))(offsets)))(zero)
+    one = jax.grad(lambda d: _moment(d, spp=1, edge_gradients=True))
+    loop = sum(one(o) for o in offsets)
+    np.testing.assert_allclose(float(batched), float(loop), rtol=1e-9)
+    assert abs(float(loop)) > 1.0
+
+
 def test_sliding_box_matches_analytic_derivative():
     # As the quad above (spp 9): the box's silhouette is the quad's outline, found with the
     # solid's miss function (t_near - t_far) in place of the polygon's.
