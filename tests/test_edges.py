@@ -172,6 +172,8 @@ def test_edge_pairs_counts_what_the_budget_must_hold():
     diamond = rt.with_parameters(quad_scene(), {"object[0].corners": jnp.asarray(DIAMOND, jnp.float64)})
     with pytest.raises(ValueError, match="edge_budget"):
         rt.edge_pairs(diamond, spp=9, edge_budget=QUAD_BUDGET)
+    # Inside an eager jax.grad of something else the scene's values are concrete: it runs.
+    assert float(jax.grad(lambda x: x * rt.edge_pairs(quad_scene(), spp=9, edge_budget=QUAD_BUDGET))(1.0)) == 70.0
     with pytest.raises(TypeError, match="outside jax.jit"):
         jax.jit(lambda s: rt.edge_pairs(s, spp=9, edge_budget=QUAD_BUDGET))(quad_scene())
 

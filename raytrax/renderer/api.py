@@ -7,7 +7,7 @@ import math
 
 import jax
 
-from ..compile_options import top_level
+from ..compile_options import concrete, top_level
 from ..edges import EdgeOptions
 from ..edges.prims import id_offsets
 from ..edges.records import compact_bytes
@@ -172,7 +172,8 @@ def edge_pairs(
     samples' records differ at all (the pairing holds them too). Runs the render's
     edge finder once (the program the render compiles with this ``edge_budget``,
     default the default budget) and returns a Python int; a scene that needs more
-    than that budget raises the render's ``ValueError``. Call it outside ``jax.jit``.
+    than that budget raises the render's ``ValueError``. Call it outside ``jax.jit``, on
+    a scene whose values are not traced (an eager ``jax.grad`` of other values is fine).
 
     The finder's arrays have the budget's size (its work past the last crossing is
     skipped, not its bookkeeping), so a budget a few times what the scene needs can
@@ -183,10 +184,10 @@ def edge_pairs(
         need = rt.edge_pairs(scene)
         img = rt.render(scene, edge_gradients=True, edge_budget=max(1024, 4 * need))
     """
-    if not top_level():
+    if not concrete(scene):
         raise TypeError(
-            "edge_pairs: call it outside jax.jit, jax.grad and jax.vmap (it runs the edge finder and "
-            "returns a Python int); pass its result as render's edge_budget inside them"
+            "edge_pairs: call it with the scene's values, outside jax.jit and not on traced values "
+            "(it runs the edge finder and returns a Python int); pass its result as render's edge_budget"
         )
     st, opts, n_dev = _options(
         scene, width, height, spp, max_depth, None, filter_textures, branches, tile_rays, devices, True

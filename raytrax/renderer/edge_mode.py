@@ -7,7 +7,6 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-from jax.core import Tracer
 
 from ..branching import any_in_batch, run_or_zeros
 from ..camera import cone_spread
@@ -137,7 +136,7 @@ def render_edges(scene: Scene, opts: RenderOptions, eo):
 def budget_needed(scene: Scene, opts: RenderOptions, eo) -> int:
     """A budget that :func:`render_edges` of ``scene`` with these options needs
     (:func:`raytrax.edges.find_edges`), found with the finder that the render runs
-    (``eo``'s budget; called outside any transformation)."""
+    (``eo``'s budget; the scene's values concrete: :func:`~raytrax.compile_options.concrete`)."""
     return int(_found(scene, opts, eo)[1])
 
 
@@ -156,9 +155,6 @@ def _found(scene: Scene, opts: RenderOptions, eo):
     scene = jax.lax.stop_gradient(scene)
     check = not concrete(scene)
     out = _find_jit(scene, _hard(opts), eo, check)
-    if not check and isinstance(out[2], Tracer):  # pragma: no cover - a trace not foreseen
-        check = True
-        out = _find_jit(scene, _hard(opts), eo, check)
     if not check and bool(out[2]):
         raise ValueError(
             f"edge_gradients: more sample pairs straddle an edge than the edge budget holds "
