@@ -107,17 +107,29 @@ def profile(scene_name: str, W: int, H: int, spp: int, budget: str, calls: int):
     return statistics.median(times), parts, sorted(kernels, reverse=True)
 
 
+SCENES = sorted(os.path.basename(p)[:-5] for p in glob.glob(os.path.join(HERE, "..", "scenes", "*.toml")))
+
+
+def budget_list(text: str) -> list[str]:
+    """``--budgets``: comma-separated ``default``, ``4x`` or positive integers."""
+    out = [b.strip() for b in text.split(",")]
+    for b in out:
+        if b not in ("default", "4x") and not (b.isdigit() and int(b) > 0):
+            raise argparse.ArgumentTypeError(f"{b!r}: expected default, 4x or a positive integer")
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n")[0])
-    ap.add_argument("--scene", default="edge_sphere", help="a scenes/*.toml name")
+    ap.add_argument("--scene", default="edge_sphere", choices=SCENES, help="a scenes/*.toml name")
     ap.add_argument("--size", type=image_size, default=(160, 120), help="WxH")
     ap.add_argument("--spp", type=at_least(1), default=16)
-    ap.add_argument("--budgets", default="default", help="comma-separated: default, 4x or a number")
+    ap.add_argument("--budgets", type=budget_list, default="default", help="comma-separated: default, 4x or a number")
     ap.add_argument("--calls", type=at_least(1), default=3)
     ap.add_argument("--top", type=at_least(0), default=12)
     args = ap.parse_args()
     W, H = args.size
-    budgets = args.budgets.split(",")
+    budgets = args.budgets
     runs = [profile(args.scene, W, H, args.spp, b, args.calls) for b in budgets]
 
     print(f"{args.scene}, {W} x {H}, spp {args.spp}, float32: jax.jit(jax.value_and_grad), edge_gradients=True")
