@@ -39,6 +39,12 @@ Method (analytic edge functions found between neighbouring samples; see
      ``t_near - t_far``), and the same the other way round;
    * both rays hit both primitives: ``g = t_A - t_B``, the depth difference,
      whose zero set is where the two surfaces cross (or a crease);
+   * a contact, where a polygon's silhouette edge lies on the other polygon's
+     plane (a box resting on the floor; found by evaluating ``t_A - t_B`` at the
+     located edge point): the depth difference, as where the two cross. Lifting
+     the solid would reveal what lies under it, which neither sample sees, and
+     sinking it changes nothing: the image has a kink there, and this gives the
+     sinking side's derivative;
    * same primitive, different shadow record for light ``k``: ``g`` is the
      occluder's miss function on the line from the hit point ``p(x)`` to the
      light, so it moves with the light, the occluder and the receiver.

@@ -18,7 +18,7 @@ from ..chunks import equal_chunks, map_chunks
 from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
-from .prims import build_prims
+from .prims import Prims, build_prims, split_ids
 from .records import object_key, pack_records, packed_rows, records, unpack_records, widen
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
@@ -86,6 +86,17 @@ def _pieces(p0, p1, width, height):
         pix.append(_pixel_of(p0 + (0.5 * (taus[j] + taus[j + 1]))[None] * (p1 - p0), width, height))
         wts.append(taus[j + 1] - taus[j])
     return jnp.stack(pix), jnp.stack(wts)
+
+
+def _meet_at_angle(P: Prims, ns, a, b):
+    """Whether primitives ``a`` and ``b (E,)`` are both polygons whose planes are not
+    parallel (so that where one's edge lies on the other, the two meet there)."""
+    if not P.pn.shape[1]:  # no polygon
+        return jnp.zeros(a.shape, bool)
+    is_a, _, pa = split_ids(P, ns, a)
+    is_b, _, pb = split_ids(P, ns, b)
+    cos = jnp.abs(jnp.sum(P.pn[:, pa] * P.pn[:, pb], 0))
+    return ~is_a & ~is_b & (cos < 1.0 - 1e-6)
 
 
 def _pixel_of(x, width, height):
@@ -308,7 +319,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         ev_cls = Events(*(jnp.stack(f) for f in zip(*evs)))
         x_cls = jnp.stack([xb, xa, xa, xb, xa, xb])
 
-        def classify(vals):
+        def classify(vals, final=False):
             mAb, mBa = vals[0], vals[1]
             case1 = (A >= 0) & (mAb > 0)
             case2 = ~case1 & (B >= 0) & (mBa > 0)
@@ -316,7 +327,22 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             # crossing, or a crease of a convex solid).
             up = (vals[2] <= 0) & (vals[3] >= 0)
             down = (vals[2] >= 0) & (vals[3] <= 0)
-            case3 = ~case1 & ~case2 & (A >= 0) & (B >= 0) & (up | down)
+            cross = (A >= 0) & (B >= 0) & (up | down)
+            if final:
+                # A contact: a polygon's silhouette edge lies on the other polygon's
+                # plane, which it meets at an angle (a box resting on the floor): at
+                # the located edge point t_A - t_B vanishes too (within 1/256 of its
+                # change between the samples). Lifting the solid reveals what lies
+                # under it, which neither sample sees; sinking it changes nothing.
+                # The crossing is taken as the depth crossing, which gives the sinking
+                # side's derivative. (Parallel faces, such as the tops of two boxes
+                # side by side, never meet: their edge stays a silhouette; so does a
+                # sphere's, whose depth beside the silhouette is not a crossing.)
+                at_edge = jnp.abs(vals[n_cls]) <= jnp.abs(vals[3] - vals[2]) / 256.0
+                contact = (case1 | case2) & cross & at_edge & _meet_at_angle(P_sg, ns, A, B)
+                case1 = case1 & ~contact
+                case2 = case2 & ~contact
+            case3 = ~case1 & ~case2 & cross
             typ_v = jnp.where(case1 | case2, MISS, DEPTH)
             ok_v = case1 | case2 | case3
             ma, mb = vals[4], vals[5]
@@ -329,26 +355,33 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             )
             return ev, c["live"] & jnp.where(vis, ok_v, ok_s), case2
 
+        # The last step evaluates t_A - t_B at the edge point (into ``vals[n_cls]``), which
+        # tells a contact from a silhouette (:func:`classify`).
+        last = n_cls + BISECTION_STEPS
+
         def step(i, st):
             vals, lo, hi = st
-            j = jnp.minimum(i, n_cls - 1)
+            j = jnp.where(i == last, n_cls, jnp.minimum(i, n_cls - 1))
             ev_b = classify(vals)[0]
             cls = i < n_cls
-            ev_i = Events(*(jnp.where(cls, fc[j], fb) for fc, fb in zip(ev_cls, ev_b)))
+            use = jnp.where(i == last, 2, j)  # the depth event
+            ev_i = Events(*(jnp.where(cls | (i == last), fc[use], fb) for fc, fb in zip(ev_cls, ev_b)))
             mid = 0.5 * (lo + hi)
-            gv = G(ev_i, jnp.where(cls, x_cls[j], xa + mid[None] * (xb - xa)))
+            gv = G(ev_i, jnp.where(cls, x_cls[jnp.minimum(j, n_cls - 1)], xa + mid[None] * (xb - xa)))
             neg = ev_b.sign.astype(dt) * gv <= 0  # pyright: ignore
-            vals = vals.at[j].set(jnp.where(cls, gv, vals[j]))  # pyright: ignore
-            return vals, jnp.where(~cls & neg, mid, lo), jnp.where(~cls & ~neg, mid, hi)
+            keep = cls | (i == last)
+            vals = vals.at[j].set(jnp.where(keep, gv, vals[j]))  # pyright: ignore
+            bis = ~keep
+            return vals, jnp.where(bis & neg, mid, lo), jnp.where(bis & ~neg, mid, hi)
 
         with jax.named_scope("edge_locate"):
             vals, lo, hi = jax.lax.fori_loop(
                 0,
-                n_cls + BISECTION_STEPS,
+                last + 1,
                 step,
-                (jnp.zeros((n_cls,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
+                (jnp.zeros((n_cls + 1,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
             )
-        ev, ok, case2 = classify(vals)
+        ev, ok, case2 = classify(vals, final=True)
         sgn = ev.sign.astype(dt)
         ev2 = cat(ev, ev)
         sgn2 = jnp.concatenate([sgn, sgn])
