@@ -310,8 +310,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
 
         # One loop, one compiled copy of G on E positions per step: steps 0-5 classify
         # every event (which edge function separates the two samples? is the occluder
-        # hit by one shadow segment and missed by the other?), the remaining steps
-        # bisect for the edge point between the two samples.
+        # hit by one shadow segment and missed by the other?), the next steps bisect
+        # for the edge point between the two samples, and the last evaluates t_A - t_B
+        # there (``vals[n_cls]``), which tells a contact from a silhouette (classify).
         ev_d = mk(zeros + DEPTH, A, B, zeros)
         ev_s = mk(zeros + SHADOW, A, c["occ"], zeros)
         evs = [mk(zeros + MISS, A, B, zeros), mk(zeros + MISS, B, A, zeros), ev_d, ev_d, ev_s, ev_s]
@@ -355,24 +356,22 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             )
             return ev, c["live"] & jnp.where(vis, ok_v, ok_s), case2
 
-        # The last step evaluates t_A - t_B at the edge point (into ``vals[n_cls]``), which
-        # tells a contact from a silhouette (:func:`classify`).
         last = n_cls + BISECTION_STEPS
 
         def step(i, st):
             vals, lo, hi = st
-            j = jnp.where(i == last, n_cls, jnp.minimum(i, n_cls - 1))
-            ev_b = classify(vals)[0]
+            fin = i == last
             cls = i < n_cls
-            use = jnp.where(i == last, 2, j)  # the depth event
-            ev_i = Events(*(jnp.where(cls | (i == last), fc[use], fb) for fc, fb in zip(ev_cls, ev_b)))
+            keep = cls | fin  # the steps that store G in ``vals`` (the others bisect)
+            j = jnp.where(fin, n_cls, jnp.minimum(i, n_cls - 1))  # the slot written
+            ev_b = classify(vals)[0]
+            k = jnp.where(fin, 2, j)  # the event evaluated (2: the depth event)
+            ev_i = Events(*(jnp.where(keep, fc[k], fb) for fc, fb in zip(ev_cls, ev_b)))
             mid = 0.5 * (lo + hi)
             gv = G(ev_i, jnp.where(cls, x_cls[jnp.minimum(j, n_cls - 1)], xa + mid[None] * (xb - xa)))
             neg = ev_b.sign.astype(dt) * gv <= 0  # pyright: ignore
-            keep = cls | (i == last)
             vals = vals.at[j].set(jnp.where(keep, gv, vals[j]))  # pyright: ignore
-            bis = ~keep
-            return vals, jnp.where(bis & neg, mid, lo), jnp.where(bis & ~neg, mid, hi)
+            return vals, jnp.where(~keep & neg, mid, lo), jnp.where(~keep & ~neg, mid, hi)
 
         with jax.named_scope("edge_locate"):
             vals, lo, hi = jax.lax.fori_loop(
