@@ -3,9 +3,9 @@
 The box's bottom edge lies where its sides meet the floor. Lifting the box reveals
 the floor under it, which neither neighbouring sample sees; sinking it changes
 nothing. The image is continuous there with a kink in the box's height: edge mode
-returns the sinking side's derivative (zero), not a boundary term measured with the
-wrong jump (before: 2.5 times the lifting side's derivative). Off the floor, the same
-edge is a silhouette and its boundary term is checked against central differences.
+returns the sinking side's derivative (zero), not a boundary term whose jump is
+measured against the floor beside the box. Off the floor, the same edge is a
+silhouette and its boundary term is checked against central differences.
 """
 
 import jax
