@@ -42,9 +42,9 @@ Method (analytic edge functions found between neighbouring samples; see
    * a contact, where a polygon's silhouette edge lies on the other polygon's
      plane (a box resting on the floor; found by evaluating ``t_A - t_B`` at the
      located edge point): the depth difference, as where the two cross. Lifting
-     the solid would reveal what lies under it, which neither sample sees, and
-     sinking it changes nothing: the image has a kink there, and this gives the
-     sinking side's derivative;
+     the solid would reveal what lies under it, which neither sample sees, while
+     sinking it only moves the line where the two meet: the image has a kink
+     there, and this gives the sinking side's derivative;
    * same primitive, different shadow record for light ``k``: ``g`` is the
      occluder's miss function on the line from the hit point ``p(x)`` to the
      light, so it moves with the light, the occluder and the receiver.

@@ -334,9 +334,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 # plane, which it meets at an angle (a box resting on the floor): at
                 # the located edge point t_A - t_B vanishes too (within 1/256 of its
                 # change between the samples). Lifting the solid reveals what lies
-                # under it, which neither sample sees; sinking it changes nothing.
-                # The crossing is taken as the depth crossing, which gives the sinking
-                # side's derivative. (Parallel faces, such as the tops of two boxes
+                # under it, which neither sample sees; sinking it only moves the line
+                # where the two meet. The crossing is taken as the depth crossing,
+                # which gives the sinking side's derivative. (Parallel faces, such as the tops of two boxes
                 # side by side, never meet: their edge stays a silhouette; so does a
                 # sphere's, whose depth beside the silhouette is not a crossing.)
                 at_edge = jnp.abs(vals[n_cls]) <= jnp.abs(vals[3] - vals[2]) / 256.0
