@@ -3,15 +3,14 @@
     python benchmarks/bench_camera_edges.py                         # every case, ~15 min on 2 cores
     python benchmarks/bench_camera_edges.py --cases checker --spp 64,256,1024,4096
 
-Moving the camera moves every edge in the image at once. Each case is the camera,
-lights and materials of ``scenes/edge_occluders.toml`` (16 x 12, classic shading,
-float64, the loss ``mean(R * image)`` of ``tests/test_edges.py``) with some of its
-content: ``sphere`` (the ball alone, over the background), ``box`` (the rotated box
-alone), ``floor_sphere`` (the ball over a plain floor: silhouette and shadow),
-``checker`` (the checkered floor alone, box-filtered, the default: no geometric edge
-in view, only the pattern's), ``image`` (the floor's checker as a bilinear
-``ImageTexture`` on a large quad, 8 texels per cell) and ``occluders`` (the scene file
-itself). The camera
+Moving the camera moves every edge in the image at once. Each case has the camera, the
+first light and the size of ``scenes/edge_occluders.toml`` (16 x 12, classic shading,
+float64, the loss ``mean(R * image)`` of ``tests/test_edges.py``) and some of its objects:
+``sphere`` (the ball alone, over the background), ``box`` (the rotated box alone),
+``floor_sphere`` (the ball over a plain floor: silhouette and shadow), ``checker`` (the
+checkered floor alone, box-filtered, the default: no geometric edge in view, only the
+pattern's) and ``image`` (a checker of the same cell size as a bilinear ``ImageTexture``
+on a large quad, 8 texels a cell); ``occluders`` is the scene file itself. The camera's
 position is differentiated (x, y, z).
 
 Printed per case: the reference (central differences of jittered renders, the same key
@@ -66,7 +65,7 @@ def case_scene(case: str):
     if case in ("floor_sphere", "checker"):
         b.plane((0, 0, 0), (0, 1, 0), "floor")
     if case == "image":
-        # The checker of scale 1.3 over a 20 x 20 quad: 26 cells, 8 texels each.
+        # Cells of the checker's size (scale 1.3) over a 20 x 20 quad: 26 a side, 8 texels each.
         cells = (np.indices((26 * 8, 26 * 8)) // 8).sum(0) % 2
         texels = np.where(cells[..., None] == 1, (0.3, 0.35, 0.4), (1.0, 1.0, 1.0)) * np.asarray([0.9, 0.9, 0.85])
         b.material("board", color=(1.0, 1.0, 1.0), texture=rt.ImageTexture(texels))
