@@ -32,7 +32,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import raytrax as rt  # noqa: E402
-from raytrax.testing import smooth_weights  # noqa: E402
+from raytrax.testing import jittered_central_differences, smooth_weights  # noqa: E402
 
 SCENE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "edge_occluders.toml")
 CASES = ("sphere", "box", "floor_sphere", "checker", "image", "occluders")
@@ -85,6 +85,9 @@ def main():
     ap.add_argument("--keys", type=int, default=16)
     ap.add_argument("--steps", default="0.025,0.05", help="central-difference steps (world units)")
     a = ap.parse_args()
+    unknown = sorted(set(a.cases.split(",")) - set(CASES))
+    if unknown:
+        ap.error(f"--cases: unknown {', '.join(unknown)}; expected a comma-separated subset of {', '.join(CASES)}")
     name = "camera.position"
     for case in a.cases.split(","):
         sc = case_scene(case)
@@ -97,16 +100,9 @@ def main():
             return jnp.mean(w * image)
 
         print(f"{case} ({st.width} x {st.height}), d loss / d {name} (x, y, z):", flush=True)
-        f = jax.jit(lambda q, key, loss=loss: loss(q, a.ref_spp, key))
         for step in (float(s) for s in a.steps.split(",")):
             t0 = time.perf_counter()
-            fd = np.array(
-                [
-                    [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * step)) for e in step * jnp.eye(3, dtype=jnp.float64)]
-                    for k in (jax.random.key(i) for i in range(a.keys))
-                ]
-            )
-            mean, se = fd.mean(0), fd.std(0, ddof=1) / np.sqrt(a.keys)
+            mean, se = jittered_central_differences(loss, q0, step, a.ref_spp, a.keys)
             cells = "  ".join(f"{m:+.6f} +- {s:.6f}" for m, s in zip(mean, se))
             print(f"  central differences, step {step}: {cells}  ({time.perf_counter() - t0:.0f} s)", flush=True)
         for spp in (int(s) for s in a.spp.split(",")):

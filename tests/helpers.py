@@ -80,24 +80,6 @@ def ray_sphere_np(o, d, center, radius):
     return np.where(disc >= 0, t, np.inf)
 
 
-def jittered_central_differences(loss, q0, step, spp, keys):
-    """Central differences of ``loss(q, spp=spp, key=key)`` at ``q0 (P,)``, each pair of
-    jittered renders sharing one key, averaged over ``keys`` keys: the reference for
-    edge gradients (the anti-aliased image is smooth in the parameters). Returns the
-    mean ``(P,)`` and its standard error ``(P,)``."""
-    import jax
-
-    f = jax.jit(lambda q, key: loss(q, spp=spp, key=key))
-    eye = step * jnp.eye(q0.shape[0], dtype=q0.dtype)
-    fd = np.array(
-        [
-            [float((f(q0 + e, k) - f(q0 - e, k)) / (2 * step)) for e in eye]
-            for k in (jax.random.key(i) for i in range(keys))
-        ]
-    )
-    return fd.mean(0), fd.std(0, ddof=1) / np.sqrt(len(fd))
-
-
 _JAX_SETUP = ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES", "RAYTRAX_CPU_DEVICES", "RAYTRAX_XLA_FLAGS")
 
 

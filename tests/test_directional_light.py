@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import camera_rays_np, jit_grad, jittered_central_differences, ray_sphere_np
+from helpers import camera_rays_np, jit_grad, ray_sphere_np
 
 import raytrax as rt
-from raytrax.testing import check_gradients, smooth_weights
+from raytrax.testing import check_gradients, jittered_central_differences, smooth_weights
 
 F64 = jnp.float64
 

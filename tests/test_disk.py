@@ -25,12 +25,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import camera_rays_np, jit_grad, jittered_central_differences
+from helpers import camera_rays_np, jit_grad
 
 import raytrax as rt
 from raytrax.intersect import EPS_REL
 from raytrax.shapes import disk_soa, disk_t
-from raytrax.testing import check_gradients, smooth_weights
+from raytrax.testing import check_gradients, jittered_central_differences, smooth_weights
 
 F64 = jnp.float64
 

@@ -11,10 +11,9 @@ silhouette and its boundary term is checked against central differences.
 import jax
 import jax.numpy as jnp
 import numpy as np
-from helpers import jittered_central_differences
 
 import raytrax as rt
-from raytrax.testing import smooth_weights
+from raytrax.testing import jittered_central_differences, smooth_weights
 
 W, H = 24, 18
 NAME = "object[1].min"

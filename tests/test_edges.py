@@ -25,11 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from golden import cases
-from helpers import compiled_programs, jit_grad, jittered_central_differences
+from helpers import compiled_programs, jit_grad
 
 import raytrax as rt
 from raytrax import edges
-from raytrax.testing import smooth_weights
+from raytrax.testing import jittered_central_differences, smooth_weights
 
 # In one worker with the golden test's gradients, which the finite-difference checks
 # below reuse (tests/golden/cases.py).

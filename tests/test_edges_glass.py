@@ -23,9 +23,9 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import pytest
-from helpers import jittered_central_differences
 
 import raytrax as rt
+from raytrax.testing import jittered_central_differences
 
 W, H = 40, 30
 SPP = 16  # the edge gradient's 4 x 4 grid per pixel

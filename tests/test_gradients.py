@@ -35,7 +35,7 @@ import pytest
 
 import raytrax as rt
 from raytrax.camera import primary_rays
-from raytrax.testing import check_gradients, gradient_report, image_loss, render64
+from raytrax.testing import check_gradients, gradient_report, image_loss, jittered_central_differences, render64
 
 W, H = 16, 12
 RTOL = 1e-4
@@ -416,3 +416,20 @@ def test_check_gradients_rejects_float32():
         check_gradients(lambda q: jnp.sum(q["a"]).astype(jnp.float32), {"a": np.ones(2)})
     with pytest.raises(ValueError, match="not a key of params; did you mean 'light"):
         check_gradients(lambda q: jnp.sum(q["light"]), {"light": np.ones(2)}, names=["lihgt"])
+
+
+def test_jittered_central_differences_of_a_known_function():
+    # A "render" whose value depends on the key only through a term that cancels in each
+    # difference (both sides share the key): the mean is the exact derivative, the spread 0.
+    def loss(q, spp, key):
+        noise = jax.random.uniform(key, (), jnp.float64)
+        return jnp.sum(jnp.sin(q)) * spp + noise
+
+    q0 = jnp.asarray([0.3, -1.2], jnp.float64)
+    mean, se = jittered_central_differences(loss, q0, 1e-4, 4, 3)
+    np.testing.assert_allclose(mean, 4 * np.cos(np.asarray(q0)), rtol=1e-7)
+    np.testing.assert_allclose(se, 0.0, atol=1e-7)
+    with pytest.raises(ValueError, match="keys must be at least 2"):
+        jittered_central_differences(loss, q0, 1e-4, 4, 1)
+    with pytest.raises(ValueError, match=r"q0 must be a vector \(P,\), got shape \(\)"):
+        jittered_central_differences(loss, q0[0], 1e-4, 4, 3)

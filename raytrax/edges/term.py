@@ -336,9 +336,10 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 # change between the samples). Lifting the solid reveals what lies
                 # under it, which neither sample sees; sinking it only moves the line
                 # where the two meet. The crossing is taken as the depth crossing,
-                # which gives the sinking side's derivative. (Parallel faces, such as the tops of two boxes
-                # side by side, never meet: their edge stays a silhouette; so does a
-                # sphere's, whose depth beside the silhouette is not a crossing.)
+                # which gives the sinking side's derivative. (Parallel faces, such as
+                # the tops of two boxes side by side, never meet: their edge stays a
+                # silhouette; so does a sphere's, whose depth beside the silhouette is
+                # not a crossing.)
                 at_edge = jnp.abs(vals[n_cls]) <= jnp.abs(vals[3] - vals[2]) / 256.0
                 contact = (case1 | case2) & cross & at_edge & _meet_at_angle(P_sg, ns, A, B)
                 case1 = case1 & ~contact
