@@ -132,3 +132,76 @@ def map_chunks(
     else:
         out = over(chunks, const)
     return tm(lambda y: join(y, m, out_axis), out)
+
+
+def map_worklist(fn, spawn, xs: Any, n_live, n: int, size: int, devices: int = 1, const: Any = None):
+    """:func:`map_chunks` over a work list that grows: ``fn(chunk, const)`` over the
+    ``n`` chunks of ``size`` entries of the pytree ``xs`` (every leaf has ``n * size``
+    entries along its last axis, the first ``n_live`` of them live), where after each
+    chunk ``spawn(chunk, out) -> (new (size,), entries)`` names entries to add to the
+    list (``entries``: a pytree like ``chunk``, taken where ``new``). They are appended
+    after the list's last entry, from the next chunk on, so that a later chunk of the
+    same loop runs them (``fn`` is compiled once; an added entry may add more); those
+    that find no room are dropped and counted. Chunks are not skipped here: ``fn``
+    skips those without live entries itself.
+
+    Returns ``fn``'s outputs joined (``size`` entries along their last axis per chunk),
+    the final list (``xs`` with the added entries in its free slots) and the number
+    dropped. ``devices > 1``: the chunks dealt to the devices in turn (``n`` a multiple
+    of ``devices``), each device adding to its own list in its own chunks."""
+    tm = jax.tree_util.tree_map
+    chunks = tm(lambda x: split(x, n, size), xs)  # (n, ..., size)
+
+    def grow(chunks, c, live):
+        k = jax.tree_util.tree_leaves(chunks)[0].shape[0]
+        cap = k * size
+        flat = tm(lambda x: jnp.moveaxis(x, 0, -2).reshape(x.shape[1:-1] + (cap,)), chunks)
+        shapes = jax.eval_shape(fn, tm(lambda x: x[..., :size], flat), c)
+        outs = tm(lambda s: jnp.zeros(s.shape[:-1] + (cap,), s.dtype), shapes)
+
+        def body(j, st):
+            flat, outs, end, lost = st
+            j = jnp.asarray(j, jnp.int32)
+            chunk = tm(lambda x: jax.lax.dynamic_slice_in_dim(x, j * size, size, -1), flat)
+            out = fn(chunk, c)
+            outs = tm(lambda o, y: jax.lax.dynamic_update_slice_in_dim(o, y, j * size, -1), outs, out)
+            new, ent = spawn(chunk, out)
+            start = jnp.maximum(end, (j + 1) * size)
+            rank = jnp.cumsum(new.astype(jnp.int32))
+            pos = jnp.where(new, start + rank - 1, cap)
+            flat = tm(lambda x, e: x.at[..., pos].set(e, mode="drop"), flat, ent)
+            stop = start + rank[-1]
+            return flat, outs, jnp.minimum(stop, cap), lost + jnp.maximum(stop - cap, 0)
+
+        z = jnp.zeros((), jnp.int32)
+        flat, outs, _, lost = jax.lax.fori_loop(0, k, body, (flat, outs, live, z))
+        return outs, flat, lost
+
+    n_live = jnp.asarray(n_live, jnp.int32)
+    if devices <= 1:
+        outs, flat, lost = grow(chunks, const, n_live)
+        return outs, flat, lost
+    if n % devices:
+        raise ValueError(f"map_worklist: {n} chunks do not split over {devices} devices")
+    # Device d holds chunks d, d + devices...: its live entries are a prefix of them.
+    first = (
+        jnp.arange(devices, dtype=jnp.int32)[:, None] + devices * jnp.arange(n // devices, dtype=jnp.int32)[None]
+    ) * size
+    per = jnp.sum(jnp.clip(n_live - first, 0, size), 1).astype(jnp.int32)
+
+    def run(ch, c):
+        cc, per = c
+        outs, flat, lost = grow(ch, cc, per[jax.lax.axis_index(AXIS)])
+        back = tm(lambda y: jax.lax.all_gather(y[None], AXIS, tiled=True), (outs, flat))
+        return back, jax.lax.psum(lost, AXIS)[None]
+
+    (outs, flat), lost = over_devices(run, devices, None)(tm(lambda x: round_robin(x, devices), chunks), (const, per))
+
+    def redeal(y):  # (devices, ..., local list) -> the global list in chunk order
+        y = y.reshape(y.shape[:-1] + (n // devices, size))  # (devices, ..., local chunks, size)
+        y = jnp.moveaxis(y, -2, 1)  # (devices, local chunks, ..., size)
+        y = y.reshape((n,) + y.shape[2:])  # device-major chunks
+        y = round_robin(y, devices, back=True)
+        return jnp.moveaxis(y, 0, -2).reshape(y.shape[1:-1] + (n * size,))
+
+    return tm(redeal, outs), tm(redeal, flat), lost[0]

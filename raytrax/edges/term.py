@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
-from ..chunks import equal_chunks, map_chunks
+from ..chunks import equal_chunks, map_chunks, map_worklist
 from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
@@ -291,6 +291,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         "xa": xy[:, ea],
         "xb": xy[:, eb],
         "eh": eh,
+        "ea": ea,
+        "eb": eb,
+        "far": jnp.full_like(ea, -1),
     }
 
     def solve(c, R):
@@ -342,6 +345,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 # not a crossing.)
                 at_edge = jnp.abs(vals[n_cls]) <= jnp.abs(vals[3] - vals[2]) / 256.0
                 contact = (case1 | case2) & cross & at_edge & _meet_at_angle(P_sg, ns, A, B)
+                owner_b = case2  # whose silhouette the edge is (a contact's too)
                 case1 = case1 & ~contact
                 case2 = case2 & ~contact
             case3 = ~case1 & ~case2 & cross
@@ -355,7 +359,11 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 jnp.where(vis, B, c["occ"]),
                 jnp.where(vis, jnp.where(case2 | (case3 & ~up), -1, 1), jnp.where(ma <= 0, 1, -1)),
             )
-            return ev, c["live"] & jnp.where(vis, ok_v, ok_s), case2
+            ok = c["live"] & jnp.where(vis, ok_v, ok_s)
+            # The silhouettes (a contact's too) and whose they are (the second
+            # sample's side: owner_b).
+            silh = vis & ((typ_v == MISS) | contact) if final else vis & (typ_v == MISS)
+            return ev, ok, case2, owner_b if final else case2, silh
 
         last = n_cls + BISECTION_STEPS
 
@@ -381,7 +389,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 step,
                 (jnp.zeros((n_cls + 1,) + A.shape, dt), jnp.zeros(A.shape, dt), jnp.ones(A.shape, dt)),
             )
-        ev, ok, case2 = classify(vals, final=True)
+        ev, ok, case2, owner_b, silh = classify(vals, final=True)
         sgn = ev.sign.astype(dt)
         ev2 = cat(ev, ev)
         sgn2 = jnp.concatenate([sgn, sgn])
@@ -414,7 +422,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         # inside probe is extrapolated to the edge with ``a``, fitted from it and two
         # more rays 1/16 and 1/4 of the spacing inside (phi h: the first inside
         # sample's distance from the edge; step 6 of the module docstring).
-        sil = vis & (ev.typ == MISS) & (ev.p1 < ns)
+        sil = vis & (ev.typ == MISS) & (ev.p1 < ns) & (c["far"] < 0)
         in_b = case2  # the sphere is on the second sample's side
         t_s = 0.5 * (lo[:E] + hi[:E])
         phi = jnp.clip(jnp.where(in_b, 1.0 - t_s, t_s), 1e-6, 1.0)
@@ -435,6 +443,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             return jnp.concatenate([x, x], -1)
 
         sided = jnp.concatenate([-jnp.ones_like(sgn), jnp.ones_like(sgn)]) * h
+        # A silhouette's far side: the side of the first crossing of its chain where
+        # its primitive is not (the near side may show a third primitive first).
+        far_e = jnp.where(silh, jnp.where(c["far"] >= 0, c["far"], jnp.where(owner_b, 0, 1)), -1)
 
         # Per side (2E: each event's piece before and after its edge point), gathered
         # in batches of ``m`` sides: steps 0 and 1 run on every side, the bisection
@@ -450,6 +461,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             "lv": dup(c["level"]),
             "k": dup(c["k"]),
             "vis": dup(vis),
+            "ea": dup(c["ea"]),
+            "eb": dup(c["eb"]),
+            "far": dup(far_e),
         }
         m = max(1, E // 4)
         okd = dup(ok)
@@ -492,19 +506,34 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             ia = jnp.clip(ca[1], 0, Gh - 1) * Gw + jnp.clip(ca[0], 0, Gw - 1)
             ib = jnp.clip(ia + jnp.where(a[0] > 0, 1, Gw), 0, S - 1)
             at = jax.tree_util.tree_map(lambda v: widen(v[..., jnp.concatenate([ia, ib])]), R)
-            # Compared on what makes this event: the chain prefix, the hit at its
-            # level and, for a shadow edge, its light's occluders there.
+            og = jax.tree_util.tree_map(lambda v: widen(v[..., jnp.concatenate([sd["ea"], sd["eb"]])]), R)
+            # Compared with the event's own pair of grid samples on what makes this
+            # event: the chain prefix, the hit at its level and, for a shadow edge, its
+            # light's occluders there.
             lv2 = jnp.tile(sd["lv"], 2)
             same = jnp.ones(lv2.shape, bool)
+            pre = jnp.ones(lv2.shape, bool)
             for q in range(D):
-                same = same & ((q > lv2) | (at.hit[q] == r.hit[q])) & ((q >= lv2) | (at.refr[q] == r.refr[q]))
+                pre = pre & ((q >= lv2) | ((at.hit[q] == og.hit[q]) & (at.refr[q] == og.refr[q])))
+            hit_at = at_level(at.hit, lv2)
+            same = pre & (hit_at == at_level(og.hit, lv2))
             if L:
                 k2, ar = jnp.tile(sd["k"], 2), jnp.arange(2 * k)
                 same = same & (
                     jnp.tile(sd["vis"], 2)
-                    | ((at.first[lv2, k2, ar] == r.first[lv2, k2, ar]) & (at.last[lv2, k2, ar] == r.last[lv2, k2, ar]))
+                    | (
+                        (at.first[lv2, k2, ar] == og.first[lv2, k2, ar])
+                        & (at.last[lv2, k2, ar] == og.last[lv2, k2, ar])
+                    )
                 )
-            return ~inside | (same[:k] & same[k:])
+            far = sd["far"]
+            # A crossing found beyond a third primitive (far >= 0): the neighbouring
+            # pair finds it too where it sees the same beyond the edge (its far sample)
+            # and something else on the near side.
+            same_far = jnp.where(far == 0, same[:k], same[k:])
+            differs = hit_at[:k] != hit_at[k:]
+            sec_ok = same_far & differs & pre[:k] & pre[k:]
+            return ~inside | jnp.where(far >= 0, sec_ok, same[:k] & same[k:])
 
         nr = packed_rows(D, L)
 
@@ -607,7 +636,13 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             pre_m = pre_m & (~before | ((r_m.hit[q] == c["chain"][q]) & (r_m.refr[q] == c["refr"][q])))
             pre_p = pre_p & (~before | ((r_p.hit[q] == c["chain"][q]) & (r_p.refr[q] == c["refr"][q])))
         hm, hp = at_level(r_m.hit, lvl), at_level(r_p.hit, lvl)
-        jump_ok = pre_m & pre_p & (hm == A) & jnp.where(vis, hp == B, hp == A)
+        strict = (hm == A) & jnp.where(vis, hp == B, hp == A)
+        # Beside a primitive's own silhouette the other side may show a third
+        # primitive (a mesh's face seen edge-on between a crease and the outline):
+        # the jump there is measured as it is, and the crossing beyond it is located
+        # in a second pass, between that probe and the far sample.
+        relaxed = jnp.where(owner_b, (hp == B) & (hm != B), (hm == A) & (hp != A))
+        jump_ok = pre_m & pre_p & jnp.where(silh, relaxed, strict)
         if L:
             ar = jnp.arange(E)
             sh = (
@@ -632,7 +667,14 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         a4, c4 = V.safe_div(ga, m) ** 4, V.safe_div(gc, m) ** 4
         wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
         cbase = -jnp.sign(ga) * wgt * (e_m + e_p)  # times the jump: the coefficient of g
+        sec = ok & jump_ok & silh & jnp.where(owner_b, hm != A, hp != B)
         out = {
+            "sec": sec,
+            "sec_A": jnp.where(owner_b, A, hp),
+            "sec_B": jnp.where(owner_b, hm, B),
+            "sec_xa": jnp.where(owner_b[None], xa, xs + u),
+            "sec_xb": jnp.where(owner_b[None], xs - u, xb),
+            "sec_far": far_e,
             "typ": ev.typ,
             "p1": ev.p1,
             "p2": ev.p2,
@@ -693,9 +735,33 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         return out
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
-    res = map_chunks(
-        solve_or_skip, jax.lax.stop_gradient(inputs), K, nc, C, devices=eo.devices, deal=True, const=(R, over)
+    def spawn(c, out):
+        """The crossings found beyond a third primitive (see ``solve``): the same pair
+        of grid samples' chain, between the probe that saw it and the far sample."""
+        sec = out["sec"]
+        ent = dict(c)
+        ent.update(
+            live=sec,
+            vis=sec,
+            A=out["sec_A"],
+            B=out["sec_B"],
+            xa=out["sec_xa"],
+            xb=out["sec_xb"],
+            far=out["sec_far"],
+        )
+        return sec, ent
+
+    res, inputs, n_lost = map_worklist(
+        solve_or_skip,
+        spawn,
+        jax.lax.stop_gradient(inputs),
+        jnp.minimum(count, K),
+        nc,
+        C,
+        devices=eo.devices,
+        const=(R, over),
     )
+    vis, k_ev, level, chain, refr = inputs["vis"], inputs["k"], inputs["level"], inputs["chain"], inputs["refr"]
     # The jumps: the probes of every event traced in one chunked pass, skipping the
     # chunks past the live events (a shadow edge's jump is that of its light's
     # contribution alone: index k; visibility edges and the inner rays carry
@@ -751,7 +817,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         "pix": res["pix"],
         "wts": res["wts"],
     }
-    need = jnp.maximum(count.astype(jnp.int32), n_differ.astype(jnp.int32))
+    # The crossings found beyond a third primitive take slots of the budget too.
+    spawned = count_true(inputs["live"], jnp.int32) - jnp.minimum(count, K).astype(jnp.int32) + n_lost
+    need = jnp.maximum(count.astype(jnp.int32), n_differ.astype(jnp.int32)) + spawned
     return jax.lax.stop_gradient(found), need, over, jax.lax.stop_gradient(quad)
 
 
