@@ -132,7 +132,16 @@ def build_prims(scene) -> tuple[Prims, dict]:
         jnp.max(ms.reflectivity, axis=1),
         ms.ior,
     )
-    return prims, dict(off, solid=solid)
+    # The polygon index of the first face of each mesh face's mesh (-1: not a mesh face).
+    group = np.full((fin.shape[0] if parts else 0,), -1, np.int32)
+    meshes = [spec for spec in KINDS if spec.name == "mesh"]
+    if meshes and group.size:
+        start = off["mesh"] - ns
+        for m in scene.prims[meshes[0].field]:
+            k = int(m.faces.shape[0])
+            group[start : start + k] = start
+            start += k
+    return prims, dict(off, solid=solid, group=group)
 
 
 def split_ids(P: Prims, ns, ids):

@@ -8,6 +8,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import textures as tx
 from .. import vec as V
@@ -63,6 +64,29 @@ def object_key(P: Prims, ns, g):
     pi = jnp.clip(g - ns, 0, P.solid.shape[0] - 1)
     solid = (g >= ns) & (P.solid[pi] >= 0)
     return jnp.where(solid, ns + P.solid[pi], g)
+
+
+def group_key(off, g):
+    """The mesh of global primitive ids ``g`` (the first face of its mesh for each of
+    its faces; any other id stays as it is): one object for the shadow edges of a
+    mesh, whose faces record as occluders one by one. ``off``: :func:`build_prims`'
+    offsets."""
+    group = off.get("group")
+    if group is None or not np.any(group >= 0):
+        return g
+    ns = off["ns"]
+    pi = jnp.clip(g - ns, 0, group.shape[0] - 1)
+    gk = jnp.asarray(group)[pi]
+    return jnp.where((g >= ns) & (gk >= 0), ns + gk, g)
+
+
+def mesh_face(off, g):
+    """Whether global primitive ids ``g`` are faces of a mesh."""
+    group = off.get("group")
+    if group is None or not np.any(group >= 0):
+        return jnp.zeros(jnp.shape(g), bool)
+    ns = off["ns"]
+    return (g >= ns) & (jnp.asarray(group)[jnp.clip(g - ns, 0, group.shape[0] - 1)] >= 0)
 
 
 def occluders(scene, kinds, off, P: Prims, p, hit):

@@ -19,7 +19,7 @@ from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import Prims, build_prims, split_ids
-from .records import object_key, pack_records, packed_rows, records, unpack_records, widen
+from .records import group_key, mesh_face, object_key, pack_records, packed_rows, records, unpack_records, widen
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -239,11 +239,19 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             at_level(fb_all[:, k], lk),
         ]
         keys = [okey(c) for c in cands]
+        # A mesh is one occluder: its shadow's edge is its outline seen from the light,
+        # which the faces next to it share (a closed mesh's front and back faces).
+        # Another face of a mesh already taken is skipped where that one changes
+        # between the two samples (then it is the one whose edge is crossed).
+        groups = [group_key(off, c) for c in cands]
+        changes = [cands[0] != cands[2], cands[1] != cands[3], cands[2] != cands[0], cands[3] != cands[1]]
+        mine = []
         for j in range(4):
             new = found & (cands[j] >= 0) & (keys[j] != recv)
             for i in range(j):
-                new = new & (keys[j] != keys[i])
-            act.append(new)
+                new = new & (keys[j] != keys[i]) & ~(mine[i] & changes[i] & (groups[j] == groups[i]))
+            mine.append(new)
+        act += mine
     act = jnp.stack(act, 1)  # (Kp, nslot)
     per_pair = jnp.sum(act, 1, dtype=jnp.int32)
     count = count_true(act)
@@ -445,7 +453,12 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         sided = jnp.concatenate([-jnp.ones_like(sgn), jnp.ones_like(sgn)]) * h
         # A silhouette's far side: the side of the first crossing of its chain where
         # its primitive is not (the near side may show a third primitive first).
+        # A mesh's shadow: its edge is located face by face from the side in the shadow
+        # (``inside``: the first sample's side) to the lit side (the far side).
+        inside_a = ev.sign > 0
+        mesh_sh = ~vis & mesh_face(off, c["occ"])
         far_e = jnp.where(silh, jnp.where(c["far"] >= 0, c["far"], jnp.where(owner_b, 0, 1)), -1)
+        far_e = jnp.where(mesh_sh, jnp.where(c["far"] >= 0, c["far"], jnp.where(inside_a, 1, 0)), far_e)
 
         # Per side (2E: each event's piece before and after its edge point), gathered
         # in batches of ``m`` sides: steps 0 and 1 run on every side, the bisection
@@ -532,6 +545,10 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             # and something else on the near side.
             same_far = jnp.where(far == 0, same[:k], same[k:])
             differs = hit_at[:k] != hit_at[k:]
+            if L:
+                occ_k = [(at.first[lv2, k2, ar][i], at.last[lv2, k2, ar][i]) for i in (slice(0, k), slice(k, None))]
+                sh_differs = ~differs & ((occ_k[0][0] != occ_k[1][0]) | (occ_k[0][1] != occ_k[1][1]))
+                differs = jnp.where(sd["vis"], differs, sh_differs)
             sec_ok = same_far & differs & pre[:k] & pre[k:]
             return ~inside | jnp.where(far >= 0, sec_ok, same[:k] & same[k:])
 
@@ -651,7 +668,25 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
                 & (r_p.first[lvl, c["k"], ar] == c["fb"])
                 & (r_p.last[lvl, c["k"], ar] == c["lb"])
             )
-            jump_ok = jump_ok & (vis | sh)
+            occ = c["occ"]
+            rf = [r_m.first[lvl, c["k"], ar], r_p.first[lvl, c["k"], ar]]
+            rl = [r_m.last[lvl, c["k"], ar], r_p.last[lvl, c["k"], ar]]
+            f_in, l_in = jnp.where(inside_a, rf[0], rf[1]), jnp.where(inside_a, rl[0], rl[1])
+            f_out, l_out = jnp.where(inside_a, rf[1], rf[0]), jnp.where(inside_a, rl[1], rl[0])
+            # A mesh face's edge: the probe inside its shadow has it as an occluder, the
+            # other not (it may still be in the shadow of the mesh's next face, whose
+            # edge is located next, between that probe and the far sample).
+            relaxed_s = (hm == A) & (hp == A) & ((f_in == occ) | (l_in == occ)) & (f_out != occ) & (l_out != occ)
+            jump_ok = jump_ok & (vis | sh | (mesh_sh & relaxed_s))
+            f_far, l_far = jnp.where(inside_a, c["fb"], c["fa"]), jnp.where(inside_a, c["lb"], c["la"])
+            grp = group_key(off, occ)
+            nxt_l = (l_out != l_far) & (l_out >= 0) & (group_key(off, l_out) == grp)
+            nxt_f = (f_out != f_far) & (f_out >= 0) & (group_key(off, f_out) == grp)
+            sec_s = mesh_sh & ok & jump_ok & (nxt_l | nxt_f)
+            occ2 = jnp.where(nxt_l, l_out, f_out)
+        else:
+            sec_s = jnp.zeros_like(vis)
+            occ2 = f_out = l_out = c["occ"]
         # The probes (minus and plus side) and, beside a sphere's silhouette, the two
         # inner rays: traced after every chunk is solved (below), in large batches.
         probe = jnp.stack([xs - u, xs + u] + (list(jnp.moveaxis(inner.reshape(2, 2, E), 1, 0)) if ns else []), 1)
@@ -667,13 +702,22 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         a4, c4 = V.safe_div(ga, m) ** 4, V.safe_div(gc, m) ** 4
         wgt = V.safe_div(V.safe_div(a4, a4 + c4), jnp.abs(ga))  # weight / |g_a|
         cbase = -jnp.sign(ga) * wgt * (e_m + e_p)  # times the jump: the coefficient of g
-        sec = ok & jump_ok & silh & jnp.where(owner_b, hm != A, hp != B)
+        sec_v = ok & jump_ok & silh & jnp.where(owner_b, hm != A, hp != B)
+        # Where the next crossing lies: beyond the probe on the second sample's side
+        # (a silhouette owned by the first sample, a shadow whose inside is there), or
+        # on the first's.
+        to_b = jnp.where(vis, ~owner_b, inside_a)
         out = {
-            "sec": sec,
-            "sec_A": jnp.where(owner_b, A, hp),
-            "sec_B": jnp.where(owner_b, hm, B),
-            "sec_xa": jnp.where(owner_b[None], xa, xs + u),
-            "sec_xb": jnp.where(owner_b[None], xs - u, xb),
+            "sec": sec_v | sec_s,
+            "sec_A": jnp.where(vis & owner_b, A, jnp.where(vis, hp, A)),
+            "sec_B": jnp.where(vis & owner_b, hm, B),
+            "sec_occ": jnp.where(vis, c["occ"], occ2),
+            "sec_fa": jnp.where(to_b, f_out, c["fa"]),
+            "sec_la": jnp.where(to_b, l_out, c["la"]),
+            "sec_fb": jnp.where(to_b, c["fb"], f_out),
+            "sec_lb": jnp.where(to_b, c["lb"], l_out),
+            "sec_xa": jnp.where(to_b[None], xs + u, xa),
+            "sec_xb": jnp.where(to_b[None], xb, xs - u),
             "sec_far": far_e,
             "typ": ev.typ,
             "p1": ev.p1,
@@ -742,7 +786,11 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         ent = dict(c)
         ent.update(
             live=sec,
-            vis=sec,
+            occ=out["sec_occ"],
+            fa=out["sec_fa"],
+            la=out["sec_la"],
+            fb=out["sec_fb"],
+            lb=out["sec_lb"],
             A=out["sec_A"],
             B=out["sec_B"],
             xa=out["sec_xa"],
