@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from raytrax.chunks import equal_chunks, join, map_chunks, map_leading, split
+from raytrax.chunks import equal_chunks, join, map_chunks, map_leading, map_worklist, split
 
 
 @pytest.mark.parametrize("m,most,multiple", [(1, 4, 1), (10, 4, 1), (12, 4, 1), (13, 512, 4), (307200, 1 << 18, 1)])
@@ -89,3 +89,30 @@ def test_map_leading_one_entry_equals_the_loop_in_value_and_gradient():
         want = float(jnp.sum(2 * jnp.sin(0.7 * xn) * jnp.cos(0.7 * xn) * xn))
         np.testing.assert_allclose(g, want, rtol=1e-5)
         np.testing.assert_allclose(float(loss(s, n, remat)), float(jnp.sum(jnp.sin(0.7 * xn) ** 2)), rtol=1e-6)
+
+
+def _halving(devices, n, size, start):
+    """A work list where each live entry ``v > 1`` adds the entry ``v // 2``."""
+    v = jnp.zeros(n * size, jnp.int32).at[: len(start)].set(jnp.asarray(start, jnp.int32))
+    live = jnp.arange(n * size) < len(start)
+
+    def fn(c, const):
+        return {"seen": jnp.where(c["live"], c["v"] + const, 0)}
+
+    def spawn(c, out):
+        new = c["live"] & (c["v"] > 1)
+        return new, {"v": c["v"] // 2, "live": new}
+
+    outs, final, lost = map_worklist(fn, spawn, {"v": v, "live": live}, len(start), n, size, devices, const=100)
+    seen = np.asarray(outs["seen"])
+    return sorted(int(x) - 100 for x in seen[seen > 0]), np.asarray(final["live"]), int(lost)
+
+
+@pytest.mark.parametrize("devices", [1, 2])
+def test_a_work_list_runs_the_entries_it_adds_in_later_chunks(devices):
+    seen, live, lost = _halving(devices, 8, 4, [8, 3, 5])
+    assert seen == sorted([8, 4, 2, 1, 3, 1, 5, 2, 1])  # every added entry ran once
+    assert lost == 0 and live.sum() == 9
+    # Too little room: what does not fit is dropped and counted, what fits runs.
+    seen, live, lost = _halving(devices, 2, 2, [64, 64])
+    assert lost > 0 and len(seen) == live.sum() and len(seen) + lost <= 14

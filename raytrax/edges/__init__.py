@@ -85,6 +85,18 @@ Method (analytic edge functions found between neighbouring samples; see
    grow, where the pattern filter's width goes to 0. A crossing whose probes do
    not see the two primitives that define it (near a corner, where the samples
    straddle two edges) adds nothing; the pieces of its neighbours are cut there.
+   One exception, for a silhouette (a contact's too) and for a mesh face's
+   shadow edge: where the probe on the far side sees a *third* primitive (or
+   lies in the shadow of the mesh's next face), the jump is measured as it is,
+   and the crossing beyond it is located as a new event of the same pair,
+   between that probe and the far sample; it may find a fourth, and so on. Next
+   to the outline of a coarse closed mesh the faces are seen almost edge-on, and
+   most pairs straddle a crease and the outline at once. A neighbouring row
+   counts as having the crossing of such an edge when its sample on the far
+   side sees the same as this pair's and its other sample something else. A
+   mesh is one occluder for its shadow's edges: a closed mesh's shadow segment
+   crosses a front and a back face, both recorded, and its shadow's edge (its
+   outline seen from the light) is counted once.
 6. A sphere's silhouette needs two more things, because the radiance beside it
    goes like ``f_s + a sqrt(distance)`` (the hit slides along the ray as
    ``sqrt(-g)``): the inside probe is extrapolated to the edge with ``a``,
@@ -115,7 +127,8 @@ reflection (continuous in the physical model; a jump in the classic one),
 edges of procedural textures (use ``filter_textures=True``, which makes them
 continuous), the horizon of an infinite plane, the terminator of a surface lit
 at grazing angles (there the jump is zero anyway), and pairs of samples that
-straddle two edges closer together than the sample spacing.
+straddle two edges closer together than the sample spacing (but for the
+exception of step 5).
 """
 
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
