@@ -657,7 +657,8 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         # Beside a primitive's own silhouette the other side may show a third
         # primitive (a mesh's face seen edge-on between a crease and the outline):
         # the jump there is measured as it is, and the crossing beyond it is located
-        # in a second pass, between that probe and the far sample.
+        # as a new event (``spawn``, run by a later chunk of the same loop), between
+        # that probe and the far sample.
         relaxed = jnp.where(owner_b, (hp == B) & (hm != B), (hm == A) & (hp != A))
         jump_ok = pre_m & pre_p & jnp.where(silh, relaxed, strict)
         if L:

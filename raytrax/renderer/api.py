@@ -168,8 +168,10 @@ def edge_pairs(
 ) -> int:
     """The ``edge_budget`` that ``render(scene, edge_gradients=True, ...)`` with the
     same keywords needs: the number of sample pairs with an edge between them (edge
-    crossings; any smaller budget raises) or, where larger, of sample pairs whose
-    samples' records differ at all (the pairing holds them too). Runs the render's
+    crossings; a budget below it raises) or, where larger, of sample pairs whose
+    samples' records differ at all (the pairing holds them too), plus the crossings
+    found beyond a third primitive (a coarse mesh's outline beyond a face seen
+    edge-on; a budget without room for them drops them). Runs the render's
     edge finder once (the program the render compiles with this ``edge_budget``,
     default the default budget) and returns a Python int; a scene that needs more
     than that budget raises the render's ``ValueError``. Call it outside ``jax.jit``, on
