@@ -265,8 +265,8 @@ def _table_text(t):
 
 # Known miss at spp 256 (see docs/gradients.md): the sphere centre's x component is 3 % of the
 # largest centre component; jittered central differences put it at 0.000285 +- 0.000009 (the grid
-# reference here says 0.00033). The edge estimate comes down with the samples, slowly and not
-# smoothly: -59, -51, -21, -31 % at spp 256, 1024, 2304, 4096 (benchmarks/bench_edge_convergence.py).
+# reference here says 0.00033). The edge estimate comes down with the samples, slowly but
+# steadily: -86, -63, -41, -25 % at spp 256, 1024, 2304, 4096 (benchmarks/bench_edge_convergence.py).
 KNOWN = {("center", 0)}
 
 
@@ -282,7 +282,7 @@ def test_edge_gradients_match_finite_differences_where_plain_ad_does_not():
 
 @pytest.mark.xfail(
     reason="known miss at spp 256: the sphere centre's x (3 % of its largest component; "
-    "-31 % at spp 4096); see docs/gradients.md",
+    "-25 % at spp 4096); see docs/gradients.md",
     strict=False,
 )
 def test_known_misses_within_5_percent():
