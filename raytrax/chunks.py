@@ -135,17 +135,17 @@ def map_chunks(
 
 
 def map_worklist(fn, spawn, xs: Any, n_live, n: int, size: int, devices: int = 1, const: Any = None):
-    """:func:`map_chunks` over a work list that grows: ``fn(chunk, const)`` over the
-    ``n`` chunks of ``size`` entries of the pytree ``xs`` (every leaf has ``n * size``
-    entries along its last axis, the first ``n_live`` of them live), where after each
-    chunk ``spawn(chunk, out) -> (new (size,), entries)`` names entries to add to the
+    """:func:`map_chunks` over a work list that grows: ``fn(chunk, const) -> (out, aux)``
+    over the ``n`` chunks of ``size`` entries of the pytree ``xs`` (every leaf has ``n *
+    size`` entries along its last axis, the first ``n_live`` of them live), where after
+    each chunk ``spawn(chunk, aux) -> (new (size,), entries)`` names entries to add to the
     list (``entries``: a pytree like ``chunk``, taken where ``new``). They are appended
     after the list's last entry, from the next chunk on, so that a later chunk of the
     same loop runs them (``fn`` is compiled once; an added entry may add more); those
     that find no room are dropped and counted. Chunks are not skipped here: ``fn``
     skips those without live entries itself.
 
-    Returns ``fn``'s outputs joined (``size`` entries along their last axis per chunk),
+    Returns ``fn``'s outputs ``out`` joined (``aux`` is only passed to ``spawn``, not kept) (``size`` entries along their last axis per chunk),
     the final list (``xs`` with the added entries in its free slots) and the number
     dropped. ``devices > 1``: the chunks dealt to the devices in turn (``n`` a multiple
     of ``devices``), each device adding to its own list in its own chunks."""
@@ -156,16 +156,16 @@ def map_worklist(fn, spawn, xs: Any, n_live, n: int, size: int, devices: int = 1
         k = jax.tree_util.tree_leaves(chunks)[0].shape[0]
         cap = k * size
         flat = tm(lambda x: jnp.moveaxis(x, 0, -2).reshape(x.shape[1:-1] + (cap,)), chunks)
-        shapes = jax.eval_shape(fn, tm(lambda x: x[..., :size], flat), c)
+        shapes = jax.eval_shape(fn, tm(lambda x: x[..., :size], flat), c)[0]
         outs = tm(lambda s: jnp.zeros(s.shape[:-1] + (cap,), s.dtype), shapes)
 
         def body(j, st):
             flat, outs, end, lost = st
             j = jnp.asarray(j, jnp.int32)
             chunk = tm(lambda x: jax.lax.dynamic_slice_in_dim(x, j * size, size, -1), flat)
-            out = fn(chunk, c)
+            out, aux = fn(chunk, c)
             outs = tm(lambda o, y: jax.lax.dynamic_update_slice_in_dim(o, y, j * size, -1), outs, out)
-            new, ent = spawn(chunk, out)
+            new, ent = spawn(chunk, aux)
             start = jnp.maximum(end, (j + 1) * size)
             rank = jnp.cumsum(new.astype(jnp.int32))
             pos = jnp.where(new, start + rank - 1, cap)

@@ -96,12 +96,12 @@ def _halving(devices, n, size, start):
     v = jnp.zeros(n * size, jnp.int32).at[: len(start)].set(jnp.asarray(start, jnp.int32))
     live = jnp.arange(n * size) < len(start)
 
-    def fn(c, const):
-        return {"seen": jnp.where(c["live"], c["v"] + const, 0)}
+    def fn(c, const):  # kept: the value seen; passed to spawn only: its half
+        return {"seen": jnp.where(c["live"], c["v"] + const, 0)}, {"half": c["v"] // 2}
 
-    def spawn(c, out):
-        new = c["live"] & (c["v"] > 1)
-        return new, {"v": c["v"] // 2, "live": new}
+    def spawn(c, aux):
+        new = c["live"] & (aux["half"] > 0)
+        return new, {"v": aux["half"], "live": new}
 
     outs, final, lost = map_worklist(fn, spawn, {"v": v, "live": live}, len(start), n, size, devices, const=100)
     seen = np.asarray(outs["seen"])

@@ -800,8 +800,15 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         )
         return sec, ent
 
+    def solve_split(c, const):
+        """``solve_or_skip``'s outputs, and apart what only ``spawn`` reads (not kept)."""
+        out = solve_or_skip(c, const)
+        return {k: v for k, v in out.items() if not k.startswith("sec")}, {
+            k: v for k, v in out.items() if k.startswith("sec")
+        }
+
     res, inputs, n_lost = map_worklist(
-        solve_or_skip,
+        solve_split,
         spawn,
         jax.lax.stop_gradient(inputs),
         jnp.minimum(count, K),
