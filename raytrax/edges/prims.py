@@ -56,12 +56,15 @@ class Prims(NamedTuple):
 def build_prims(scene) -> tuple[Prims, dict]:
     """The :class:`Prims` of ``scene`` (differentiable), in the order of the kind
     registry (:data:`raytrax.shapes.KINDS`), and :func:`id_offsets` with the
-    ``solid`` table (polygon index of each polygon's solid's first face, -1: none)."""
+    ``solid`` table (polygon index of each polygon's solid's first face, -1: none)
+    and the ``group`` table (polygon index of the first face of each polygon's
+    object where the kind groups its faces, ``KindSpec.face_groups``; -1: none)."""
     dt = scene.dtype
     off = id_offsets(scene)
     ns = off["ns"]
     parts = []  # EdgePolygons per kind
     solids = []  # (first polygon index, faces per solid, number of solids)
+    grouped = []  # (first polygon index, faces per object) of kinds whose faces occlude as one
     round_ = False  # some polygon is a disk
     for spec in KINDS:
         if spec.edge == "sphere":
@@ -73,6 +76,8 @@ def build_prims(scene) -> tuple[Prims, dict]:
         round_ = round_ or spec.edge == "disk"
         if spec.solid_faces:
             solids.append((off[spec.name] - ns, spec.solid_faces, n // spec.solid_faces))
+        if spec.face_groups(group):
+            grouped.append((off[spec.name] - ns, spec.face_groups(group)))
         parts.append(spec.edge_polygons(group))
     if parts:
         pp, pn, eo, em, fin, prad, pmat = (jnp.concatenate(x, 0) for x in zip(*parts, strict=True))
@@ -132,13 +137,11 @@ def build_prims(scene) -> tuple[Prims, dict]:
         jnp.max(ms.reflectivity, axis=1),
         ms.ior,
     )
-    # The polygon index of the first face of each mesh face's mesh (-1: not a mesh face).
+    # The polygon index of the first face of each grouped face's object (a mesh's;
+    # KindSpec.face_groups), -1 where the polygon is an object of its own.
     group = np.full((fin.shape[0] if parts else 0,), -1, np.int32)
-    meshes = [spec for spec in KINDS if spec.name == "mesh"]
-    if meshes and group.size:
-        start = off["mesh"] - ns
-        for m in scene.prims[meshes[0].field]:
-            k = int(m.faces.shape[0])
+    for start, sizes in grouped:
+        for k in sizes:
             group[start : start + k] = start
             start += k
     return prims, dict(off, solid=solid, group=group)

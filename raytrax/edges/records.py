@@ -66,27 +66,19 @@ def object_key(P: Prims, ns, g):
     return jnp.where(solid, ns + P.solid[pi], g)
 
 
-def group_key(off, g):
-    """The mesh of global primitive ids ``g`` (the first face of its mesh for each of
-    its faces; any other id stays as it is): one object for the shadow edges of a
-    mesh, whose faces record as occluders one by one. ``off``: :func:`build_prims`'
-    offsets."""
+def face_group(off, g):
+    """The object of global primitive ids ``g`` among the kinds whose faces occlude
+    as one (a mesh; ``KindSpec.face_groups``): ``(key, grouped)``, the first face of
+    its object for each grouped face (any other id stays as it is), and whether the
+    id is such a face. One object for the shadow edges of a mesh, whose faces record
+    as occluders one by one. ``off``: :func:`build_prims`' offsets."""
     group = off.get("group")
     if group is None or not np.any(group >= 0):
-        return g
+        return g, jnp.zeros(jnp.shape(g), bool)
     ns = off["ns"]
-    pi = jnp.clip(g - ns, 0, group.shape[0] - 1)
-    gk = jnp.asarray(group)[pi]
-    return jnp.where((g >= ns) & (gk >= 0), ns + gk, g)
-
-
-def mesh_face(off, g):
-    """Whether global primitive ids ``g`` are faces of a mesh."""
-    group = off.get("group")
-    if group is None or not np.any(group >= 0):
-        return jnp.zeros(jnp.shape(g), bool)
-    ns = off["ns"]
-    return (g >= ns) & (jnp.asarray(group)[jnp.clip(g - ns, 0, group.shape[0] - 1)] >= 0)
+    gk = jnp.asarray(group)[jnp.clip(g - ns, 0, group.shape[0] - 1)]
+    grouped = (g >= ns) & (gk >= 0)
+    return jnp.where(grouped, ns + gk, g), grouped
 
 
 def occluders(scene, kinds, off, P: Prims, p, hit):

@@ -19,7 +19,7 @@ from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import Prims, build_prims, split_ids
-from .records import group_key, mesh_face, object_key, pack_records, packed_rows, records, unpack_records, widen
+from .records import face_group, object_key, pack_records, packed_rows, records, unpack_records, widen
 
 BISECTION_STEPS = 14  # edge point between two samples: 2^-14 of their spacing
 END_STEPS = 8  # end of an edge piece inside its strip: 2^-8 of the spacing
@@ -243,7 +243,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         # which the faces next to it share (a closed mesh's front and back faces).
         # Another face of a mesh already taken is skipped where that one changes
         # between the two samples (then it is the one whose edge is crossed).
-        groups = [group_key(off, c) for c in cands]
+        groups = [face_group(off, c)[0] for c in cands]
         changes = [cands[0] != cands[2], cands[1] != cands[3], cands[2] != cands[0], cands[3] != cands[1]]
         mine = []
         for j in range(4):
@@ -456,7 +456,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         # A mesh's shadow: its edge is located face by face from the side in the shadow
         # (``inside``: the first sample's side) to the lit side (the far side).
         inside_a = ev.sign > 0
-        mesh_sh = ~vis & mesh_face(off, c["occ"])
+        mesh_sh = ~vis & face_group(off, c["occ"])[1]
         far_e = jnp.where(silh, jnp.where(c["far"] >= 0, c["far"], jnp.where(owner_b, 0, 1)), -1)
         far_e = jnp.where(mesh_sh, jnp.where(c["far"] >= 0, c["far"], jnp.where(inside_a, 1, 0)), far_e)
 
@@ -680,9 +680,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
             relaxed_s = (hm == A) & (hp == A) & ((f_in == occ) | (l_in == occ)) & (f_out != occ) & (l_out != occ)
             jump_ok = jump_ok & (vis | sh | (mesh_sh & relaxed_s))
             f_far, l_far = jnp.where(inside_a, c["fb"], c["fa"]), jnp.where(inside_a, c["lb"], c["la"])
-            grp = group_key(off, occ)
-            nxt_l = (l_out != l_far) & (l_out >= 0) & (group_key(off, l_out) == grp)
-            nxt_f = (f_out != f_far) & (f_out >= 0) & (group_key(off, f_out) == grp)
+            grp = face_group(off, occ)[0]
+            nxt_l = (l_out != l_far) & (l_out >= 0) & (face_group(off, l_out)[0] == grp)
+            nxt_f = (f_out != f_far) & (f_out >= 0) & (face_group(off, f_out)[0] == grp)
             sec_s = mesh_sh & ok & jump_ok & (nxt_l | nxt_f)
             occ2 = jnp.where(nxt_l, l_out, f_out)
         else:

@@ -257,6 +257,13 @@ class KindSpec:
         """Triangles one primitive adds to the merged triangle list."""
         return 0
 
+    def face_groups(self, group) -> tuple[int, ...]:
+        """Edge-primitive ids per object, for kinds whose objects are made of faces
+        that :mod:`raytrax.edges` must treat as one occluder (a mesh: its shadow's
+        edge is its outline, which several of its faces share); ``()`` for every
+        other kind (a convex solid's faces are grouped by ``solid_faces``)."""
+        return ()
+
     # -- traced ----------------------------------------------------------------
     def search(self, group) -> SearchPart | None:
         """The kind's own search, or ``None`` for triangle-family kinds."""

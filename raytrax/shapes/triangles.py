@@ -280,7 +280,10 @@ class MeshSpec(_TriangleFamily):
         return [("vertices", (lambda g, j=j: g[j].vertices), None, tuple(group[j].vertices.shape))]
 
     def n_ids(self, group):
-        return sum(int(m.faces.shape[0]) for m in group)
+        return sum(self.face_groups(group))
+
+    def face_groups(self, group):
+        return tuple(int(m.faces.shape[0]) for m in group)
 
     def n_triangles(self, params):
         return int(np.asarray(params["faces"]).shape[0])
