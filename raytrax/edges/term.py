@@ -5,12 +5,14 @@ silhouette quadrature (the method is described in :mod:`raytrax.edges`)."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
@@ -119,7 +121,7 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
     (step 6), or ``None`` in a scene without spheres. The crossings are a dict of
     ``K = budget`` (rounded up to whole chunks) entries: ``events``
     (:class:`~raytrax.edges.Events`), edge points ``xs (2, K)``, ``ok (K,)``, the
-    coefficients ``coef (K, 3)`` of ``g``, and the pixels ``pix (3, K)`` and length
+    coefficients ``coef (3, K)`` of ``g``, and the pixels ``pix (3, K)`` and length
     fractions ``wts (3, K)`` of each crossing's piece. Kept apart from
     :func:`edge_image` so that, called outside ``jax.jit``, the two compile as
     separate programs (XLA:CPU's compile time grows faster than the program).
@@ -849,8 +851,9 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
     fm = jnp.where(in_b, fl[:, 0], fin)
     fp = jnp.where(in_b, fin, fl[:, 1])
     df = jnp.where(res["jump_ok"][:, None], fm - fp, 0.0)
-    coef = df * res["cbase"][:, None]
-    coef = jnp.where(res["ok"][:, None] & jnp.isfinite(coef), coef, 0.0)  # (K, 3)
+    # (3, K), channel-major as edge_image reads it (built per channel: no transpose kernel)
+    coef = jnp.stack([df[:, j] * res["cbase"] for j in range(3)])
+    coef = jnp.where(res["ok"][None] & jnp.isfinite(coef), coef, 0.0)
     quad = None
     if "qx" in res:
         live_q = jnp.any(res["qw"] != 0, 0)
@@ -885,6 +888,43 @@ def edge_image(scene, width, height, found):
     respect to ``scene`` is the edge contribution: ``sum coef * g(x_s, theta)`` over
     the crossings, split between the pixels their pieces cover.
 
+    The value is zeros, computed from nothing: only the derivative evaluates ``g``
+    (a ``jax.custom_jvp`` whose rule is the JVP of :func:`term_image` along the
+    leaves of ``scene`` that have a tangent), so a gradient pays for the boundary
+    term's linearisation and its transpose, not for a forward evaluation of it."""
+    return _derivative_only(width, height, scene, found)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _derivative_only(width, height, scene, found):
+    return jnp.zeros((height, width, 3), scene.dtype)
+
+
+@functools.partial(_derivative_only.defjvp, symbolic_zeros=True)
+def _derivative_only_jvp(width, height, primals, tangents):
+    scene, found = primals
+    leaves, tdef = jax.tree.flatten(scene)
+    t_leaves = jax.tree.leaves(tangents[0], is_leaf=lambda t: isinstance(t, SymbolicZero))
+    on = [not isinstance(t, SymbolicZero) for t in t_leaves]
+    zero = jnp.zeros((height, width, 3), scene.dtype)
+    if not any(on):
+        return zero, zero
+
+    def of_live(*live):
+        it = iter(live)
+        return term_image(
+            jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]), width, height, found
+        )
+
+    _, t = jax.jvp(of_live, tuple(x for x, o in zip(leaves, on) if o), tuple(t for t, o in zip(t_leaves, on) if o))
+    return zero, t
+
+
+def term_image(scene, width, height, found):
+    """``sum coef * g(x_s, theta)`` over the crossings ``found``, split between the
+    pixels their pieces cover: ``(height, width, 3)``, differentiable in ``scene``
+    (:func:`edge_image` takes its derivative only).
+
     The crossings are evaluated in chunks of at most :data:`IMAGE_CHUNK`; a chunk
     without a crossing that adds anything is skipped (the live crossings are packed
     at the front, so the cost follows the edges present, not the budget)."""
@@ -904,10 +944,9 @@ def edge_image(scene, width, height, found):
     def chunk(c):
         return run_or_zeros(any_in_batch(c["ok"]), term, c, remat=True)
 
-    args = {"events": found["events"], "xs": found["xs"], "ok": found["ok"], "coef": found["coef"].T}
-    terms = map_chunks(chunk, args, K, nc, C).T  # (K, 3)
-    img = jnp.zeros((height * width, 3), terms.dtype)
+    args = {"events": found["events"], "xs": found["xs"], "ok": found["ok"], "coef": found["coef"]}
+    terms = map_chunks(chunk, args, K, nc, C)  # (3, K)
+    img = jnp.zeros((3, height * width), terms.dtype)
     for j in range(3):
-        img = img.at[found["pix"][j]].add(terms * found["wts"][j][:, None])
-    img = img - jax.lax.stop_gradient(img)
-    return img.reshape(height, width, 3)
+        img = img.at[:, found["pix"][j]].add(terms * found["wts"][j][None])
+    return jnp.moveaxis(img.reshape(3, height, width), 0, -1)
