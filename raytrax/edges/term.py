@@ -772,13 +772,17 @@ def find_edges(scene, width, height, eo: EdgeOptions, radiance_at, check: bool =
         # The budget's check, in every chunk and so on every device of a sharded
         # finder: a check outside the sharded map would stop one device while the
         # others wait for it at their next collective, which aborts the process.
+        # On what the boundary term reads (``ok``) and on the quadrature's weights, which
+        # the grid's image reads (a jitted render with no derivative computes no
+        # boundary term; with a sphere it still traces the quadrature's rays).
         if check:
-            out["ok"] = eqx.error_if(
-                out["ok"],
-                exceeded,
+            msg = (
                 f"edge_gradients: more sample pairs straddle an edge than edge_budget={budget}; "
-                "pass a larger edge_budget to render (raytrax.edge_pairs gives what a scene needs)",
+                "pass a larger edge_budget to render (raytrax.edge_pairs gives what a scene needs)"
             )
+            for name in ("ok", "qw"):
+                if name in out:
+                    out[name] = eqx.error_if(out[name], exceeded, msg)
         return out
 
     # The events are packed at the front: the chunks are dealt to the devices in turn.
@@ -895,9 +899,20 @@ def edge_image(scene, width, height, found):
     return _derivative_only(width, height, scene, found)
 
 
+def _zero_image(width, height, scene, found):
+    """Zeros ``(height, width, 3)``, batched under ``jax.vmap`` wherever ``scene`` or
+    ``found`` is (the value of :func:`edge_image` and of its JVP rule must be batched
+    alike, and as the derivative is): a select that XLA folds to zeros, not a
+    product (no NaN of the scene reaches it)."""
+    dt = scene.dtype
+    leaves = [found["xs"]] + [x for x in jax.tree.leaves(scene) if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
+    dep = sum(jnp.ravel(jax.lax.stop_gradient(x))[0].astype(dt) for x in leaves)
+    return jnp.zeros((height, width, 3), dt) + jnp.where(True, jnp.zeros((), dt), dep)
+
+
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
 def _derivative_only(width, height, scene, found):
-    return jnp.zeros((height, width, 3), scene.dtype)
+    return _zero_image(width, height, scene, found)
 
 
 @functools.partial(_derivative_only.defjvp, symbolic_zeros=True)
@@ -906,9 +921,9 @@ def _derivative_only_jvp(width, height, primals, tangents):
     leaves, tdef = jax.tree.flatten(scene)
     t_leaves = jax.tree.leaves(tangents[0], is_leaf=lambda t: isinstance(t, SymbolicZero))
     on = [not isinstance(t, SymbolicZero) for t in t_leaves]
-    zero = jnp.zeros((height, width, 3), scene.dtype)
+    zero = _zero_image(width, height, scene, found)
     if not any(on):
-        return zero, zero
+        return zero, jnp.zeros_like(zero)
 
     def of_live(*live):
         it = iter(live)
@@ -916,7 +931,8 @@ def _derivative_only_jvp(width, height, primals, tangents):
             jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]), width, height, found
         )
 
-    _, t = jax.jvp(of_live, tuple(x for x, o in zip(leaves, on) if o), tuple(t for t, o in zip(t_leaves, on) if o))
+    live = [x for x, o in zip(leaves, on) if o]
+    _, t = jax.jvp(of_live, tuple(live), tuple(t for t, o in zip(t_leaves, on) if o))
     return zero, t
 
 
