@@ -48,3 +48,34 @@ def _seed_jvp(dtype, primals, tangents):
 
 
 _seed.defjvp(_seed_jvp, symbolic_zeros=True)
+
+
+def zero_batched_as(tree, dtype):
+    """A scalar ``0`` of ``dtype`` batched under ``jax.vmap`` wherever a float leaf of
+    ``tree`` is (no gradient; computed without arithmetic, so a NaN or infinite leaf
+    gives no NaN). Added to a value that a ``jax.custom_jvp`` rule computes from
+    nothing, it makes that value batched as the rule's derivative is."""
+    leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact)]
+    return jax.lax.stop_gradient(_zero_of(jnp.dtype(dtype), *leaves))
+
+
+def split_live(primals, tangents):
+    """The arguments of a ``jax.custom_jvp`` rule defined with ``symbolic_zeros=True``
+    split by whether their leaves have a tangent: ``(tdef, on, live, live_tangents,
+    dead)``, the primals' tree structure, a flag per leaf (a tuple), the leaves with a
+    tangent and their tangents, and the others. :func:`join_live` puts them back
+    together, so that a rule can differentiate with respect to the live leaves alone
+    (no tangent of the others is computed, stored or transposed)."""
+    leaves, tdef = jax.tree.flatten(primals)
+    t_leaves = jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
+    on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
+    live = [x for x, o in zip(leaves, on) if o]
+    live_t = [t for t, o in zip(t_leaves, on) if o]
+    dead = [x for x, o in zip(leaves, on) if not o]
+    return tdef, on, live, live_t, dead
+
+
+def join_live(tdef, on, live, dead):
+    """The primals that :func:`split_live` split, from ``live`` and ``dead`` leaves."""
+    it, rest = iter(live), iter(dead)
+    return jax.tree.unflatten(tdef, [next(it) if o else next(rest) for o in on])

@@ -12,13 +12,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.custom_derivatives import SymbolicZero
 
 from .. import vec as V
 from ..branching import any_in_batch, run_or_zeros
 from ..chunks import equal_chunks, map_chunks, map_worklist
 from ..intersect import prepare
 from ..masks import any_true, count_true, pack_map, prefix_count, true_indices
+from ..tracing import join_live, split_live, zero_batched_as
 from .events import DEPTH, MISS, SHADOW, Events, edge_value
 from .prims import Prims, build_prims, split_ids
 from .records import face_group, object_key, pack_records, packed_rows, records, unpack_records, widen
@@ -901,13 +901,9 @@ def edge_image(scene, width, height, found):
 
 def _zero_image(width, height, scene, found):
     """Zeros ``(height, width, 3)``, batched under ``jax.vmap`` wherever ``scene`` or
-    ``found`` is (the value of :func:`edge_image` and of its JVP rule must be batched
-    alike, and as the derivative is): a select that XLA folds to zeros, not a
-    product (no NaN of the scene reaches it)."""
-    dt = scene.dtype
-    leaves = [found["xs"]] + [x for x in jax.tree.leaves(scene) if jnp.issubdtype(x.dtype, jnp.floating) and x.size]
-    dep = sum(jnp.ravel(jax.lax.stop_gradient(x))[0].astype(dt) for x in leaves)
-    return jnp.zeros((height, width, 3), dt) + jnp.where(True, jnp.zeros((), dt), dep)
+    ``found`` is: the value of :func:`edge_image` and of its JVP rule must be batched
+    alike, and as the derivative is."""
+    return jnp.zeros((height, width, 3), scene.dtype) + zero_batched_as((scene, found["xs"]), scene.dtype)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
@@ -918,21 +914,15 @@ def _derivative_only(width, height, scene, found):
 @functools.partial(_derivative_only.defjvp, symbolic_zeros=True)
 def _derivative_only_jvp(width, height, primals, tangents):
     scene, found = primals
-    leaves, tdef = jax.tree.flatten(scene)
-    t_leaves = jax.tree.leaves(tangents[0], is_leaf=lambda t: isinstance(t, SymbolicZero))
-    on = [not isinstance(t, SymbolicZero) for t in t_leaves]
     zero = _zero_image(width, height, scene, found)
-    if not any(on):
+    tdef, on, live, live_t, dead = split_live(scene, tangents[0])
+    if not live:
         return zero, jnp.zeros_like(zero)
 
     def of_live(*live):
-        it = iter(live)
-        return term_image(
-            jax.tree.unflatten(tdef, [next(it) if o else x for x, o in zip(leaves, on)]), width, height, found
-        )
+        return term_image(join_live(tdef, on, live, dead), width, height, found)
 
-    live = [x for x, o in zip(leaves, on) if o]
-    _, t = jax.jvp(of_live, tuple(live), tuple(t for t, o in zip(t_leaves, on) if o))
+    _, t = jax.jvp(of_live, tuple(live), tuple(live_t))
     return zero, t
 
 

@@ -8,7 +8,6 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jax.custom_derivatives import SymbolicZero
 
 from ..branching import run_or_zeros
 from ..camera import cone_spread, sample_positions
@@ -17,7 +16,7 @@ from ..compile_options import filter_jit
 from ..intersect import prepare
 from ..masks import any_true
 from ..scene import Scene
-from ..tracing import tangent_seed
+from ..tracing import join_live, split_live, tangent_seed
 from .options import RenderOptions
 from .whitted import ray_part, trace
 
@@ -145,8 +144,7 @@ def _jvp_of_live(opts: RenderOptions, tdef, on, live_p, live_t, dead):
     (``dead``) stay constants: no tangent is computed, stored or transposed for them."""
 
     def of_live(*live):
-        it, rest = iter(live), iter(dead)
-        scene, key = jax.tree.unflatten(tdef, [next(it) if o else next(rest) for o in on])
+        scene, key = join_live(tdef, on, live, dead)
         return _render_image(scene, opts, key)
 
     return jax.jvp(of_live, tuple(live_p), tuple(live_t))
@@ -201,17 +199,11 @@ def render_image(scene: Scene, opts: RenderOptions, key):
     def _image_jvp(primals, tangents):
         # Only the leaves with a tangent are differentiated: the others (symbolic
         # zeros) stay constants of the JVP.
-        leaves, tdef = jax.tree.flatten(primals)
-        t_leaves = jax.tree.leaves(tangents, is_leaf=lambda t: isinstance(t, SymbolicZero))
-        on = tuple(not isinstance(t, SymbolicZero) for t in t_leaves)
-        live_p = [x for x, o in zip(leaves, on) if o]
-        live_t = [t for t, o in zip(t_leaves, on) if o]
+        tdef, on, live_p, live_t, dead = split_live(primals, tangents)
         # Where only colours (and lights, the environment) have a tangent, the rays
         # gain none (read as a batch over colours is, above).
         flags = jax.tree.unflatten(tdef, list(on))
-        return _jvp_of_live_jit(
-            _shading_options(opts, flags), tdef, on, live_p, live_t, [x for x, o in zip(leaves, on) if not o]
-        )
+        return _jvp_of_live_jit(_shading_options(opts, flags), tdef, on, live_p, live_t, dead)
 
     image.defjvp(_image_jvp, symbolic_zeros=True)
 
