@@ -145,9 +145,9 @@ def map_worklist(fn, spawn, xs: Any, n_live, n: int, size: int, devices: int = 1
     that find no room are dropped and counted. Chunks are not skipped here: ``fn``
     skips those without live entries itself.
 
-    Returns ``fn``'s outputs ``out`` joined (``aux`` is only passed to ``spawn``, not kept) (``size`` entries along their last axis per chunk),
-    the final list (``xs`` with the added entries in its free slots) and the number
-    dropped. ``devices > 1``: the chunks dealt to the devices in turn (``n`` a multiple
+    Returns ``fn``'s outputs ``out`` joined (``size`` entries along their last axis
+    per chunk; ``aux`` goes to ``spawn`` only and is not kept), the final list (``xs``
+    with the added entries in its free slots) and the number dropped. ``devices > 1``: the chunks dealt to the devices in turn (``n`` a multiple
     of ``devices``), each device adding to its own list in its own chunks."""
     tm = jax.tree_util.tree_map
     chunks = tm(lambda x: split(x, n, size), xs)  # (n, ..., size)

@@ -20,8 +20,11 @@ def tangent_seed(tree, dtype):
     body a second time, and nested scans multiply these passes. Outside any
     transformation it is a plain zero; under ``jax.vmap`` it is batched where a leaf
     of ``tree`` is (as a carry computed from those leaves is)."""
-    leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact)]
-    return _seed(jnp.dtype(dtype), *leaves)
+    return _seed(jnp.dtype(dtype), *_float_leaves(tree))
+
+
+def _float_leaves(tree):
+    return [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact)]
 
 
 def _zero_of(dtype, *xs):
@@ -55,8 +58,7 @@ def zero_batched_as(tree, dtype):
     ``tree`` is (no gradient; computed without arithmetic, so a NaN or infinite leaf
     gives no NaN). Added to a value that a ``jax.custom_jvp`` rule computes from
     nothing, it makes that value batched as the rule's derivative is."""
-    leaves = [x for x in jax.tree.leaves(tree) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.inexact)]
-    return jax.lax.stop_gradient(_zero_of(jnp.dtype(dtype), *leaves))
+    return jax.lax.stop_gradient(_zero_of(jnp.dtype(dtype), *_float_leaves(tree)))
 
 
 def split_live(primals, tangents):

@@ -76,8 +76,9 @@ def build_prims(scene) -> tuple[Prims, dict]:
         round_ = round_ or spec.edge == "disk"
         if spec.solid_faces:
             solids.append((off[spec.name] - ns, spec.solid_faces, n // spec.solid_faces))
-        if spec.face_groups(group):
-            grouped.append((off[spec.name] - ns, spec.face_groups(group)))
+        sizes = spec.face_groups(group)
+        if sizes:
+            grouped.append((off[spec.name] - ns, sizes))
         parts.append(spec.edge_polygons(group))
     if parts:
         pp, pn, eo, em, fin, prad, pmat = (jnp.concatenate(x, 0) for x in zip(*parts, strict=True))
