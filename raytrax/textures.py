@@ -41,6 +41,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.ad_checkpoint import checkpoint_name
 
 from . import vec as V
 from .imageio import srgb_to_linear
@@ -133,15 +134,18 @@ def bilinear(image, uv):
     iy0 = jnp.clip(y0.astype(jnp.int32), 0, H - 1)
     iy1 = jnp.clip(iy0 + 1, 0, H - 1)
     flat = image.reshape(H * W, image.shape[2])
-
-    def g(iy, ix):
-        return flat[iy * W + ix].T
-
+    t00, t01, t10, t11 = (flat[iy * W + ix].T for iy, ix in ((iy0, ix0), (iy0, ix1), (iy1, ix0), (iy1, ix1)))
+    if H * W > uv.shape[1]:
+        # The rays' texels, named like the search's results: reverse mode under the
+        # integrator's shading checkpoint then keeps these (12 values a ray) rather than
+        # the whole image, which it would otherwise keep once per batch of rays and
+        # depth to gather from again (75 MB per call for a 512 x 512 texture).
+        t00, t01, t10, t11 = checkpoint_name((t00, t01, t10, t11), "raytrax_search")
     return (
-        g(iy0, ix0) * ((1 - fx) * (1 - fy))[None]
-        + g(iy0, ix1) * (fx * (1 - fy))[None]
-        + g(iy1, ix0) * ((1 - fx) * fy)[None]
-        + g(iy1, ix1) * (fx * fy)[None]
+        t00 * ((1 - fx) * (1 - fy))[None]
+        + t01 * (fx * (1 - fy))[None]
+        + t10 * ((1 - fx) * fy)[None]
+        + t11 * (fx * fy)[None]
     )
 
 
