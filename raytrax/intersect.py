@@ -31,6 +31,7 @@ from . import shapes as S
 from . import vec as V
 from .branching import any_in_batch
 from .shapes.triangles import tri_crossings, tri_hit, tri_soa, tri_t
+from .tracing import KEPT
 
 BLOCK = 128
 # Kinds of more than CULL_MIN primitives with world bounds (spheres, boxes, quads, disks)
@@ -150,7 +151,7 @@ def _kept(k: Kind, rows, n: int):
     integrator's shading checkpoint then keeps the rays' rows rather than the whole
     tables, which it would otherwise keep once per batch of rays to gather from again
     (36 MB each time for a mesh of 10^6 triangles)."""
-    return checkpoint_name(rows, "raytrax_search") if k.material.shape[0] > n else rows
+    return checkpoint_name(rows, KEPT) if k.material.shape[0] > n else rows
 
 
 def hit_args(k: Kind, idx):
@@ -383,7 +384,7 @@ def closest_hit(kinds: list[Kind], o, d) -> Hit:
     ray = tuple(jax.lax.stop_gradient(x) for x in (o[0], o[1], o[2], d[0], d[1], d[2]))
     which, t0, ids = nearest_kind(kinds, ray)
     # Reverse mode (integrator's shading checkpoint) keeps these instead of searching again.
-    which, t0, ids = checkpoint_name((which, t0, ids), "raytrax_search")
+    which, t0, ids = checkpoint_name((which, t0, ids), KEPT)
 
     def combine(which, t0, ids, o, d):
         valid = t0 < INF

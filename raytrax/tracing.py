@@ -8,6 +8,12 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
+KEPT = "raytrax_search"
+"""The ``jax.ad_checkpoint.checkpoint_name`` of the values that the integrator's shading
+checkpoint keeps for reverse mode instead of recomputing them: the search's results and,
+where a table is larger than the batch of rays, the rays' rows of it (primitives, texels),
+so that reverse mode keeps those rather than the whole table once per batch and depth."""
+
 
 def tangent_seed(tree, dtype):
     """A scalar ``0`` of ``dtype`` whose tangent, under ``jax.jvp``, ``jax.linearize``

@@ -38,14 +38,14 @@ from ..lights import LIGHTS
 from ..materials import CHILD_FIELDS, COLOUR_FIELDS, SHADING_MODELS, facing, interface, material_rows, refract
 from ..scene import Scene
 from ..textures import footprint_widths, hit_with_uv_shifts, needs_footprint, surface_color
-from ..tracing import tangent_seed
+from ..tracing import KEPT, tangent_seed
 from . import compaction as C_
 from .options import RenderOptions
 
 # Reverse mode keeps only the inputs of each sub-tile's shading (and the values
 # named here) and recomputes the rest: storing every intermediate of every
 # bounce costs more in memory traffic than recomputing it.
-SHADE_POLICY = jax.checkpoint_policies.save_only_these_names("raytrax_search", "raytrax_shadow")
+SHADE_POLICY = jax.checkpoint_policies.save_only_these_names(KEPT, "raytrax_shadow")
 
 
 def shade(scene: Scene, kinds, o, d, w, cw, spread, opts: RenderOptions, last: bool, sel=None):
