@@ -457,3 +457,35 @@ def test_reverse_mode_keeps_the_rays_texels_not_the_image():
     assert image, "the walk over the program did not reach the texture lookup"
     stacked = sorted({sh for sh in image if len(sh) > (2 if sh[-2:] == (96 * 96, 3) else 3)})
     assert not stacked, f"reverse mode keeps stacked copies of the image: {stacked}"
+
+
+def test_gradients_through_a_texture_larger_than_a_batch_match_finite_differences():
+    """Where the image has more texels (16 x 16) than a batch has rays (8 x 6), reverse
+    mode keeps the rays' texels instead of recomputing the lookup from the image: the
+    light's position, the tint and the texels the image shows, through a mirror too,
+    against central differences (float64)."""
+    from raytrax.testing import check_gradients
+
+    texels = np.random.default_rng(4).uniform(0.1, 0.9, (16, 16, 3))
+    b = rt.SceneBuilder("classic", width=8, height=6, spp=1, max_depth=2)
+    b.camera(position=(0, 1, 5), look_at=(0, 0.5, 0), fov=40)
+    b.light((3, 5, 4), intensity=(0.8, 0.8, 0.8))
+    b.material("planet", color=(1.0, 0.9, 0.8), specular=0.3, texture=rt.ImageTexture(texels))
+    b.material("mirror", color=(0.1, 0.1, 0.1), reflectivity=0.7)
+    b.sphere((-0.5, 0.6, 0), 0.7, "planet")
+    b.sphere((0.8, 0.6, -0.5), 0.6, "mirror")
+    b.plane((0, 0, 0), (0, 1, 0), "mirror")
+    s = b.build(jnp.float64)
+    names = ("light[0].position", "material.planet.color", "material.planet.texture.image")
+    p = {k: v for k, v in rt.parameters(s).items() if k in names}
+
+    def loss(q):
+        return jnp.mean(rt.render(rt.with_parameters(s, q)) ** 2)
+
+    g = np.abs(np.asarray(jax.grad(loss)(p)["material.planet.texture.image"])).ravel()
+    seen = [int(i) for i in np.argsort(g)[-4:]]  # texels the image shows
+    assert g[seen].min() > 0, "no texel of the image is seen"
+    report = check_gradients(
+        loss, p, names={names[0]: [0, 1, 2], names[1]: [0, 1, 2], names[2]: seen}, forward_mode=False
+    )
+    assert report.ok, report
