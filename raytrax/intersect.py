@@ -31,7 +31,7 @@ from . import shapes as S
 from . import vec as V
 from .branching import any_in_batch
 from .shapes.triangles import tri_crossings, tri_hit, tri_soa, tri_t
-from .tracing import KEPT
+from .tracing import KEPT, kept_rows
 
 BLOCK = 128
 # Kinds of more than CULL_MIN primitives with world bounds (spheres, boxes, quads, disks)
@@ -146,12 +146,9 @@ def _triangle_kind(scene) -> Kind | None:
 
 
 def _kept(k: Kind, rows, n: int):
-    """``rows`` gathered from ``k``'s tables for a batch of ``n`` rays, named like the
-    search's results where the tables are larger than the batch: reverse mode under the
-    integrator's shading checkpoint then keeps the rays' rows rather than the whole
-    tables, which it would otherwise keep once per batch of rays to gather from again
-    (36 MB each time for a mesh of 10^6 triangles)."""
-    return checkpoint_name(rows, KEPT) if k.material.shape[0] > n else rows
+    """``rows`` gathered from ``k``'s tables for a batch of ``n`` rays
+    (:func:`raytrax.tracing.kept_rows`)."""
+    return kept_rows(rows, k.material.shape[0], n)
 
 
 def hit_args(k: Kind, idx):

@@ -41,12 +41,11 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.ad_checkpoint import checkpoint_name
 
 from . import vec as V
 from .imageio import srgb_to_linear
 from .materials import material_rows
-from .tracing import KEPT
+from .tracing import kept_rows
 from .vec import take_rows
 
 NONE, CHECKER, STRIPES, IMAGE = 0, 1, 2, 3
@@ -136,10 +135,7 @@ def bilinear(image, uv):
     iy1 = jnp.clip(iy0 + 1, 0, H - 1)
     flat = image.reshape(H * W, image.shape[2])
     t00, t01, t10, t11 = (flat[iy * W + ix].T for iy, ix in ((iy0, ix0), (iy0, ix1), (iy1, ix0), (iy1, ix1)))
-    if H * W > uv.shape[1]:
-        # The rays' texels (12 values a ray) are what reverse mode keeps (KEPT), not the
-        # image once per batch of rays and depth (75 MB a call for a 512 x 512 texture).
-        t00, t01, t10, t11 = checkpoint_name((t00, t01, t10, t11), KEPT)
+    t00, t01, t10, t11 = kept_rows((t00, t01, t10, t11), H * W, uv.shape[1])  # 12 values a ray
     return (
         t00 * ((1 - fx) * (1 - fy))[None]
         + t01 * (fx * (1 - fy))[None]
